@@ -1,0 +1,37 @@
+# tvf: `make test` and `make quickstart` work on a fresh machine (they build .venv first).
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: venv test test-all lint quickstart bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# torch is pinned to the CPU build that lies on these machines; an unpinned torch pulls CUDA.
+	$(PY) -m pip install -q "torch==2.13.0"
+	$(PY) -m pip install -q -e ".[dev]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m ruff check src tests benchmarks
+	$(PY) -m pytest -n 2 -q
+
+test-all: $(STAMP)
+	$(PY) -m pytest -n 2 -q -m ""
+
+lint: $(STAMP)
+	$(PY) -m ruff check src tests benchmarks
+	$(PY) -m ruff format --check src tests benchmarks
+
+quickstart: $(STAMP)
+	$(VENV)/bin/tvf quickstart --out out/quickstart
+
+bench: $(STAMP)
+	$(PY) benchmarks/sim.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .ruff_cache

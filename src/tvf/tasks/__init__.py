@@ -1,0 +1,229 @@
+"""Tasks as data: every task is a base layout plus target cells and layers, read from one table.
+
+The built-in table is ``tasks.yaml`` beside this file; ``load_task_file`` reads a user's YAML or JSON
+file of the same schema (docs/tasks.md), so a new structure needs no code.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tvf.errors import TvfError
+
+BLOCK_SIZE = 0.04
+"""Edge of a block in metres."""
+CELL_SIZE = 0.05
+"""Edge of a base cell in metres."""
+CELL_THICKNESS = 0.005
+"""Thickness of a base cell in metres: the base top is this high above the table."""
+BLOCK_SYMMETRY = math.pi / 2
+"""Blocks look the same after a quarter turn."""
+SPLITS = ("train", "unseen")
+
+
+class TaskError(TvfError):
+    """An unknown task name or a malformed task file."""
+
+
+@dataclass(frozen=True)
+class BaseCell:
+    x: float
+    y: float
+    colour: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Task:
+    """One rearrangement task: a base and the targets the blocks must fill."""
+
+    name: str
+    split: str
+    base_name: str
+    cells: tuple[BaseCell, ...]
+    targets: tuple[tuple[float, float, int], ...]
+    """(x, y, layer) in the base frame, one per block."""
+    orders: tuple[tuple[tuple[int, ...], ...], ...]
+    """Alternative oracle orders; each is a sequence of subgoal groups of target indices."""
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.targets)
+
+    @property
+    def horizon(self) -> int:
+        """Real pick-and-place steps allowed at test time (one per block, as in the paper)."""
+        return self.n_blocks
+
+    def target_offsets(self) -> np.ndarray:
+        """Target block centres ``(n, 3)`` in the base frame (z above the table, base at rest)."""
+        t = np.asarray(self.targets, dtype=np.float64)
+        z = CELL_THICKNESS + BLOCK_SIZE / 2 + BLOCK_SIZE * t[:, 2]
+        return np.stack([t[:, 0], t[:, 1], z], axis=1)
+
+    def cell_offsets(self) -> np.ndarray:
+        """Cell centres ``(m, 2)`` in the base frame."""
+        return np.asarray([(c.x, c.y) for c in self.cells], dtype=np.float64)
+
+    def footprint_radius(self) -> float:
+        """Distance from the base origin to the farthest point of any cell (the true footprint)."""
+        half = CELL_SIZE / 2
+        corners = np.array([[-half, -half], [-half, half], [half, -half], [half, half]])
+        pts = self.cell_offsets()[:, None, :] + corners[None]
+        return float(np.linalg.norm(pts, axis=-1).max())
+
+    def supports(self) -> list[list[int]]:
+        """For each target, the targets one layer below that it rests on (its footprint overlaps)."""
+        t = np.asarray(self.targets, dtype=np.float64)
+        out: list[list[int]] = []
+        for i, (x, y, k) in enumerate(t):
+            below = [
+                j
+                for j, (xj, yj, kj) in enumerate(t)
+                if kj == k - 1 and abs(xj - x) < BLOCK_SIZE and abs(yj - y) < BLOCK_SIZE
+            ]
+            if k > 0 and not below:
+                raise TaskError(f"task {self.name!r}: target {i} on layer {int(k)} rests on nothing")
+            out.append(below)
+        return out
+
+    def summary(self) -> dict:
+        return {
+            "name": self.name,
+            "split": self.split,
+            "blocks": self.n_blocks,
+            "horizon": self.horizon,
+            "base": self.base_name,
+            "layers": int(max(t[2] for t in self.targets)) + 1,
+        }
+
+
+def _colour(value, colours: dict, where: str) -> tuple[float, float, float]:
+    if isinstance(value, str):
+        if value not in colours:
+            raise TaskError(f"{where}: unknown colour {value!r}; known: {', '.join(sorted(colours))}")
+        value = colours[value]
+    rgb = tuple(float(v) for v in value)
+    if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
+        raise TaskError(f"{where}: a colour must be a name or [r, g, b] in 0..1, got {value!r}")
+    return rgb  # type: ignore[return-value]
+
+
+def _parse_task(name: str, spec: dict, bases: dict, colours: dict, source: str) -> Task:
+    where = f"{source}: task {name!r}"
+    if not isinstance(spec, dict):
+        raise TaskError(f"{where}: expected a mapping with split, base, targets")
+    missing = [k for k in ("split", "base", "targets") if k not in spec]
+    if missing:
+        raise TaskError(f"{where}: missing field(s) {', '.join(missing)}")
+    unknown = set(spec) - {"split", "base", "targets", "orders"}
+    if unknown:
+        raise TaskError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
+    if spec["split"] not in SPLITS:
+        raise TaskError(f"{where}: split must be one of {', '.join(SPLITS)}, got {spec['split']!r}")
+    if spec["base"] not in bases:
+        raise TaskError(f"{where}: unknown base {spec['base']!r}; known: {', '.join(sorted(bases))}")
+    cells = tuple(
+        BaseCell(float(c[0]), float(c[1]), _colour(c[2], colours, where)) for c in bases[spec["base"]]
+    )
+    try:
+        targets = tuple((float(t[0]), float(t[1]), int(t[2])) for t in spec["targets"])
+    except (TypeError, ValueError, IndexError) as exc:
+        raise TaskError(f"{where}: targets must be a list of [x, y, layer] ({exc})") from None
+    if not targets:
+        raise TaskError(f"{where}: needs at least one target")
+    if any(t[2] < 0 for t in targets):
+        raise TaskError(f"{where}: layers start at 0")
+    n = len(targets)
+    orders_spec = spec.get("orders") or [[list(range(n))]]
+    orders = []
+    for order in orders_spec:
+        groups = tuple(tuple(int(i) for i in g) for g in order)
+        flat = sorted(i for g in groups for i in g)
+        if flat != list(range(n)):
+            raise TaskError(f"{where}: each order must use every target index 0..{n - 1} exactly once")
+        orders.append(groups)
+    task = Task(name, spec["split"], spec["base"], cells, targets, tuple(orders))
+    task.supports()  # validates that every raised target rests on something
+    return task
+
+
+def parse_task_table(table: dict, source: str) -> dict[str, Task]:
+    """Parse a task table (the schema of tasks.yaml) into tasks keyed by name."""
+    if not isinstance(table, dict) or "tasks" not in table:
+        raise TaskError(f"{source}: a task file needs a top-level 'tasks' mapping (see docs/tasks.md)")
+    builtin = _builtin_raw()
+    colours = {**builtin.get("colours", {}), **(table.get("colours") or {})}
+    bases = {**builtin.get("bases", {}), **(table.get("bases") or {})}
+    for bname, cells in bases.items():
+        if not isinstance(cells, list) or not cells or not all(
+            isinstance(c, list) and len(c) == 3 for c in cells
+        ):
+            raise TaskError(f"{source}: base {bname!r} must be a list of [x, y, colour] cells")
+    tasks = table["tasks"]
+    if not isinstance(tasks, dict) or not tasks:
+        raise TaskError(f"{source}: 'tasks' must be a non-empty mapping of name -> task")
+    return {name: _parse_task(name, spec, bases, colours, source) for name, spec in tasks.items()}
+
+
+@cache
+def _builtin_raw() -> dict:
+    return yaml.safe_load(resources.files("tvf.tasks").joinpath("tasks.yaml").read_text())
+
+
+def load_task_file(path: str | Path) -> dict[str, Task]:
+    """Read a YAML or JSON task file. Errors name the file and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise TaskError(f"task file {path} does not exist")
+    text = path.read_text()
+    try:
+        table = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        first = str(exc).splitlines()[0]
+        raise TaskError(f"task file {path} is not valid {path.suffix.lstrip('.') or 'YAML'}: {first}") from None
+    return parse_task_table(table, str(path))
+
+
+_EXTRA: dict[str, Task] = {}
+
+
+@cache
+def builtin_tasks() -> dict[str, Task]:
+    return parse_task_table(_builtin_raw(), "tasks.yaml")
+
+
+def register_tasks(tasks: dict[str, Task]) -> None:
+    """Make tasks from a user's file available by name (used by ``--task-file``)."""
+    _EXTRA.update(tasks)
+
+
+def all_tasks() -> dict[str, Task]:
+    return {**builtin_tasks(), **_EXTRA}
+
+
+def get_task(name: str) -> Task:
+    tasks = all_tasks()
+    if name not in tasks:
+        raise TaskError(f"unknown task {name!r}; choose one of: {', '.join(tasks)}")
+    return tasks[name]
+
+
+def resolve_tasks(spec: str) -> list[Task]:
+    """``train`` | ``unseen`` | ``all`` | ``NAME[,NAME...]`` -> tasks, in table order."""
+    tasks = all_tasks()
+    if spec == "all":
+        return list(tasks.values())
+    if spec in SPLITS:
+        return [t for t in tasks.values() if t.split == spec]
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    if not names:
+        raise TaskError("no task given; use train, unseen, all or task names separated by commas")
+    return [get_task(n) for n in names]
