@@ -162,18 +162,14 @@ def se2_output_to_input(
     yaw = torch.as_tensor(yaw, dtype=torch.float32)
     n = yaw.shape[0]
     center_cr = torch.as_tensor(center, dtype=torch.float32).flip(-1)
-    shift_cr = (
-        torch.zeros(n, 2) if shift is None else torch.as_tensor(shift, dtype=torch.float32).flip(-1)
-    )
+    shift_cr = torch.zeros(n, 2) if shift is None else torch.as_tensor(shift, dtype=torch.float32).flip(-1)
     c, s = torch.cos(yaw), torch.sin(yaw)
     inv = torch.stack([torch.stack([c, s], -1), torch.stack([-s, c], -1)], -2)  # R(-yaw)
     offset = center_cr - (inv @ (center_cr + shift_cr).unsqueeze(-1)).squeeze(-1)
     return torch.cat([inv, offset.unsqueeze(-1)], dim=-1)
 
 
-def warp_images(
-    images: torch.Tensor, out_to_in: torch.Tensor, mode: str = "nearest"
-) -> torch.Tensor:
+def warp_images(images: torch.Tensor, out_to_in: torch.Tensor, mode: str = "nearest") -> torch.Tensor:
     """Warp ``(N, C, H, W)`` images with pixel-space output->input maps ``(N, 2, 3)`` in (col, row).
 
     Pixels sampled from outside the input are zero.

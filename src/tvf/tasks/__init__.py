@@ -163,8 +163,10 @@ def parse_task_table(table: dict, source: str) -> dict[str, Task]:
     colours = {**builtin.get("colours", {}), **(table.get("colours") or {})}
     bases = {**builtin.get("bases", {}), **(table.get("bases") or {})}
     for bname, cells in bases.items():
-        if not isinstance(cells, list) or not cells or not all(
-            isinstance(c, list) and len(c) == 3 for c in cells
+        if (
+            not isinstance(cells, list)
+            or not cells
+            or not all(isinstance(c, list) and len(c) == 3 for c in cells)
         ):
             raise TaskError(f"{source}: base {bname!r} must be a list of [x, y, colour] cells")
     tasks = table["tasks"]
@@ -188,7 +190,9 @@ def load_task_file(path: str | Path) -> dict[str, Task]:
         table = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         first = str(exc).splitlines()[0]
-        raise TaskError(f"task file {path} is not valid {path.suffix.lstrip('.') or 'YAML'}: {first}") from None
+        raise TaskError(
+            f"task file {path} is not valid {path.suffix.lstrip('.') or 'YAML'}: {first}"
+        ) from None
     return parse_task_table(table, str(path))
 
 

@@ -1,0 +1,3 @@
+from tvf.cli import main
+
+main()

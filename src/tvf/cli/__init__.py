@@ -1,0 +1,44 @@
+"""The ``tvf`` command line: one entry point, one subcommand per stage of the pipeline.
+
+Each subcommand is a frozen dataclass whose fields are its flags (parsed by tyro) and whose ``run``
+method does the work. Errors from bad input print one line and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import tyro
+
+from tvf.cli.world import OracleCmd, QuickstartCmd, RenderCmd, TasksCmd
+from tvf.errors import TvfError
+
+DESCRIPTION = """tvf: Transporters with Visual Foresight.
+
+Pipeline: `tvf tasks` (what can be built) -> `tvf oracle` / `tvf render` (the simulated world and its
+expert). Run `tvf COMMAND --help` for each command's flags."""
+
+COMMANDS: dict[str, type] = {
+    "tasks": TasksCmd,
+    "oracle": OracleCmd,
+    "render": RenderCmd,
+    "quickstart": QuickstartCmd,
+}
+
+
+def main(argv: list[str] | None = None) -> None:
+    command = tyro.extras.subcommand_cli_from_dict(
+        {name: cls for name, cls in COMMANDS.items()}, args=argv, description=DESCRIPTION
+    )
+    try:
+        command.run()
+    except TvfError as exc:
+        print(f"tvf: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except KeyboardInterrupt:
+        print("tvf: interrupted; finished work is kept, re-run the same command to resume", file=sys.stderr)
+        raise SystemExit(130) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,172 @@
+"""Commands about the simulated world: list tasks, run the oracle, render scenes."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tvf.errors import TvfError
+
+
+def use_task_file(task_file: Path | None) -> None:
+    """Register the tasks of a user's YAML/JSON file so they can be named like built-in ones."""
+    if task_file is not None:
+        from tvf.tasks import load_task_file, register_tasks
+
+        register_tasks(load_task_file(task_file))
+
+
+def check_output_dir(path: Path) -> Path:
+    """Create ``path`` or fail with one clear line if it cannot be written."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".tvf-write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise TvfError(
+            f"cannot write to output directory {path}: {exc.strerror}; choose another --out"
+        ) from None
+    return path
+
+
+@dataclass(frozen=True)
+class TasksCmd:
+    """List the tasks: name, split, number of blocks and step horizon."""
+
+    json: bool = False
+    """Print JSON instead of a table."""
+    task_file: Path | None = None
+    """A YAML or JSON task file (schema: docs/tasks.md) whose tasks are listed with the built-in ones."""
+
+    def run(self) -> None:
+        from tvf.tasks import all_tasks
+
+        use_task_file(self.task_file)
+        rows = [t.summary() for t in all_tasks().values()]
+        if self.json:
+            print(json.dumps(rows, indent=2))
+            return
+        print(f"{'task':<20} {'split':<7} {'blocks':>6} {'horizon':>7} {'layers':>6}  base")
+        for r in rows:
+            name, split, blocks, horizon = r["name"], r["split"], r["blocks"], r["horizon"]
+            print(f"{name:<20} {split:<7} {blocks:>6} {horizon:>7} {r['layers']:>6}  {r['base']}")
+
+
+@dataclass(frozen=True)
+class OracleCmd:
+    """Run the scripted expert and report its success per task (the ceiling for learned methods)."""
+
+    task: str = "all"
+    """A task name, several separated by commas, or train | unseen | all."""
+    episodes: int = 5
+    """Episodes per task."""
+    seed: int = 0
+    """Episode i of each task uses seed `seed + i`."""
+    workers: int = 1
+    """Parallel processes (one PyBullet client each)."""
+    step_slack: int = 0
+    """Extra steps beyond one per block."""
+    json: Path | None = None
+    """Also write per-episode results and the per-task table to this JSON file."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md)."""
+
+    def run(self) -> None:
+        from tvf.evaluate.runner import oracle_episode, run_jobs
+        from tvf.tasks import resolve_tasks
+        from tvf.viz.images import atomic_write_bytes
+
+        use_task_file(self.task_file)
+        if self.episodes < 1 or self.workers < 1:
+            raise TvfError("--episodes and --workers must be at least 1")
+        tasks = resolve_tasks(self.task)
+        jobs = [(t.name, self.seed + i, self.step_slack) for t in tasks for i in range(self.episodes)]
+        results = list(run_jobs(oracle_episode, jobs, self.workers, "oracle", self.task_file))
+        per_task: dict[str, list] = defaultdict(list)
+        for r in results:
+            per_task[r.task].append(r)
+        table = []
+        for name, rs in per_task.items():
+            failures = [
+                {"seed": r.seed, "progress": r.progress, "primitives": r.primitives}
+                for r in rs
+                if not r.success
+            ]
+            table.append({
+                "task": name, "episodes": len(rs), "success": float(np.mean([r.success for r in rs])),
+                "progress": float(np.mean([r.progress for r in rs])), "failures": failures,
+            })  # fmt: skip
+        print(f"{'task':<20} {'success':>8} {'progress':>9}  failed seeds")
+        for row in table:
+            seeds = ",".join(str(f["seed"]) for f in row["failures"]) or "-"
+            print(f"{row['task']:<20} {row['success']:>8.0%} {row['progress']:>9.0%}  {seeds}")
+        mean = float(np.mean([r.success for r in results]))
+        print(f"{'all':<20} {mean:>8.0%}")
+        if self.json is not None:
+            doc = {"tasks": table, "episodes": [r.to_dict() for r in results], "success": mean}
+            atomic_write_bytes(self.json, json.dumps(doc, indent=1).encode())
+
+
+def render_scene(task: str, seed: int, out: Path) -> dict:
+    """Write the initial and goal images (PNG + NPZ) and a perspective view of a task's scene."""
+    import io
+
+    from tvf.sim.env import TvfEnv
+    from tvf.sim.views import perspective_view
+    from tvf.viz.images import atomic_write_bytes, observation_panel, save_png
+
+    env = TvfEnv(task)
+    try:
+        obs, info = env.reset(seed=seed)
+        for name, image in (("initial", obs), ("goal", info["goal"])):
+            save_png(out / f"{name}.png", observation_panel(image["color"], image["height"]))
+            buf = io.BytesIO()
+            np.savez_compressed(buf, color=image["color"], height=image["height"])
+            atomic_write_bytes(out / f"{name}.npz", buf.getvalue())
+        save_png(out / "perspective.png", perspective_view(env.world))
+        return {"task": env.task.name, "seed": seed, "blocks": env.task.n_blocks}
+    finally:
+        env.close()
+
+
+@dataclass(frozen=True)
+class RenderCmd:
+    """Render a task's scene: initial and goal images (PNG, and NPZ with arrays `color`, `height`)
+    plus a perspective view."""
+
+    task: str
+    """The task name (see `tvf tasks`)."""
+    out: Path
+    """Output directory."""
+    seed: int = 0
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md)."""
+
+    def run(self) -> None:
+        from tvf.tasks import get_task
+
+        use_task_file(self.task_file)
+        get_task(self.task)
+        info = render_scene(self.task, self.seed, check_output_dir(self.out))
+        what = "initial/goal .png/.npz and perspective.png"
+        print(f"wrote {what} for {info['task']} seed {self.seed} to {self.out}")
+
+
+@dataclass(frozen=True)
+class QuickstartCmd:
+    """The README's main job: run the expert once on every task and write pictures of each episode."""
+
+    out: Path = Path("out/quickstart")
+    """Output directory."""
+    seed: int = 1
+    workers: int = 2
+
+    def run(self) -> None:
+        from tvf.evaluate.quickstart import oracle_gallery
+
+        oracle_gallery(check_output_dir(self.out), self.seed, self.workers)

@@ -1,0 +1,162 @@
+"""A Gymnasium environment for one rearrangement task.
+
+``reset(seed=s)`` lays out the scene for seed ``s`` and returns the top-down image; ``info['goal']``
+holds the image of the finished structure for that seed, made by settling the blocks on their targets
+in a saved copy of the scene (independent of any expert, one render, exact targets). ``step(action)``
+runs one pick-and-place, where ``action`` is a ``(2, 4)`` array of pick and place poses
+(x, y, z, yaw) in metres and radians.
+
+Seeds: one ``numpy.random.SeedSequence(seed)`` is split into independent streams for the layout,
+the oracle's order, and the oracle's and random actions' choices, so the same seed gives the same
+scene, the same oracle trajectory and the same images.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import gymnasium as gym
+import numpy as np
+
+from tvf.errors import TvfError
+from tvf.geometry import WORKSPACE
+from tvf.sim.oracle import oracle_action, random_action
+from tvf.sim.success import Progress, evaluate_structure
+from tvf.sim.world import SimConfig, World
+from tvf.tasks import Task, get_task
+
+
+class ActionError(TvfError):
+    """An action that is not finite or lies outside the workspace."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    sim: SimConfig = field(default_factory=SimConfig)
+    step_slack: int = 0
+    """Extra steps allowed beyond the task's horizon (one step per block) before truncation."""
+
+
+def validate_action(action: np.ndarray) -> np.ndarray:
+    """Return the action as a ``(2, 4)`` float array, or raise ActionError naming the problem."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (2, 4):
+        raise ActionError(
+            f"an action is a (2, 4) array of pick and place (x, y, z, yaw), got shape {a.shape}"
+        )
+    if not np.isfinite(a).all():
+        raise ActionError(f"action contains NaN or inf: {a.tolist()}")
+    ws = WORKSPACE
+    for name, pose in (("pick", a[0]), ("place", a[1])):
+        if not ws.contains_xy(pose[:2]) or not (ws.z_min <= pose[2] <= ws.z_max):
+            raise ActionError(
+                f"{name} position {np.round(pose[:3], 4).tolist()} is outside the workspace "
+                f"x [{ws.x_min}, {ws.x_max}), y [{ws.y_min}, {ws.y_max}), z [{ws.z_min}, {ws.z_max}]"
+            )
+    return a
+
+
+class TvfEnv(gym.Env):
+    """Pick-and-place rearrangement of red blocks onto a brown base, observed top-down as RGB-H."""
+
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(
+        self,
+        task: str | Task,
+        config: EnvConfig | None = None,
+        render_mode: str | None = None,
+        gui: bool = False,
+    ) -> None:
+        self.task = get_task(task) if isinstance(task, str) else task
+        self.config = config or EnvConfig()
+        if gui:
+            self.config = replace(self.config, sim=replace(self.config.sim, gui=True))
+        self.render_mode = render_mode
+        self.world = World(self.config.sim)
+        h, w = WORKSPACE.shape
+        image = gym.spaces.Dict(
+            {
+                "color": gym.spaces.Box(0, 255, (h, w, 3), np.uint8),
+                "height": gym.spaces.Box(0.0, WORKSPACE.z_max, (h, w), np.float32),
+            }
+        )
+        self.observation_space = image
+        lo = np.array([[WORKSPACE.x_min, WORKSPACE.y_min, WORKSPACE.z_min, -np.pi]] * 2)
+        hi = np.array([[WORKSPACE.x_max, WORKSPACE.y_max, WORKSPACE.z_max, np.pi]] * 2)
+        self.action_space = gym.spaces.Box(lo, hi, dtype=np.float64)
+        self.order: tuple[tuple[int, ...], ...] = self.task.orders[0]
+        self.steps = 0
+        self.seed_value: int | None = None
+        self._oracle_rng = np.random.default_rng(0)
+        self._last_obs: dict[str, np.ndarray] | None = None
+
+    @property
+    def max_steps(self) -> int:
+        return self.task.horizon + self.config.step_slack
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is None:
+            seed = int(self.np_random.integers(2**31))
+        self.seed_value = int(seed)
+        layout_ss, order_ss, oracle_ss = np.random.SeedSequence(self.seed_value).spawn(3)
+        self.world.build(self.task, np.random.default_rng(layout_ss))
+        order_rng = np.random.default_rng(order_ss)
+        self.order = self.task.orders[int(order_rng.integers(len(self.task.orders)))]
+        self._oracle_rng = np.random.default_rng(oracle_ss)
+        self.steps = 0
+        goal_color, goal_height = self.world.goal_observation()
+        obs = self._observe()
+        info = self._info(self.progress())
+        info["goal"] = {"color": goal_color, "height": goal_height}
+        return obs, info
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        color, height = self.world.observe()
+        self._last_obs = {"color": color, "height": height}
+        return self._last_obs
+
+    def progress(self) -> Progress:
+        return evaluate_structure(*self.world.block_poses(), *self.world.target_poses())
+
+    def _info(self, progress: Progress) -> dict:
+        return {
+            "task": self.task.name,
+            "seed": self.seed_value,
+            "success": progress.success,
+            "progress": progress.fraction,
+            "steps": self.steps,
+        }
+
+    def step(self, action):
+        if self.seed_value is None:
+            raise TvfError("call reset() before step()")
+        a = validate_action(action)
+        before = self.progress().fraction
+        result = self.world.arm.pick_and_place(a[0], a[1], set(self.world.blocks))
+        self.world.settle()
+        self.steps += 1
+        progress = self.progress()
+        obs = self._observe()
+        info = self._info(progress)
+        info["primitive"] = result.reason
+        terminated = progress.success
+        truncated = not terminated and self.steps >= self.max_steps
+        return obs, progress.fraction - before, terminated, truncated, info
+
+    def oracle_action(self) -> np.ndarray | None:
+        """The expert's next action for the current scene (None when it has nothing to do)."""
+        return oracle_action(self.world, self.order, self._oracle_rng)
+
+    def random_action(self) -> np.ndarray | None:
+        """Move the block the expert would move next to a random free pose (for foresight data)."""
+        return random_action(self.world, self.order, self._oracle_rng)
+
+    def render(self):
+        if self.render_mode == "rgb_array" and self._last_obs is not None:
+            return self._last_obs["color"]
+        return None
+
+    def close(self) -> None:
+        self.world.close()
