@@ -84,6 +84,9 @@ def world_to_pixel(xy: np.ndarray, ws: Workspace = WORKSPACE) -> np.ndarray:
     xy = np.asarray(xy, dtype=np.float64)
     col = np.floor((xy[..., 0] - ws.x_min) / ws.pixel_size)
     row = np.floor((xy[..., 1] - ws.y_min) / ws.pixel_size)
+    # A point a hair below the upper bound can round onto the bound: keep it in the last pixel.
+    col = np.where((col == ws.cols) & (xy[..., 0] < ws.x_max), ws.cols - 1, col)
+    row = np.where((row == ws.rows) & (xy[..., 1] < ws.y_max), ws.rows - 1, row)
     return np.stack([row, col], axis=-1).astype(np.int64)
 
 

@@ -25,8 +25,6 @@ ARM_JOINTS = 7
 TIP_LINK = 9
 """Link index of the suction tip (joints 0-6 arm, 7 flange, 8 hand, 9 tip)."""
 HOME = (0.0, -0.5, 0.0, -2.3, 0.0, 1.8, 0.785)
-PARK = (2.9, 0.75, 0.0, -1.25, 0.0, 0.9, 0.785)
-"""Arm swung behind its base: the workspace is unoccluded in all three cameras."""
 CUP_LENGTH = 0.07
 ASSET_VERSION = "2"
 """Bump when the generated URDF changes, so stale cached copies are not reused."""
@@ -37,14 +35,20 @@ CUP_RADIUS = 0.01
 class MotionConfig:
     """Speeds, tolerances and budgets of the primitive (sim steps, never seconds of wall time)."""
 
-    travel_height: float = 0.25
+    travel_height: float = 0.20
     """Tip height (m) for moves between pick and place; clears a 3-layer structure plus a held block."""
-    approach: float = 0.03
+    approach: float = 0.02
     """The slow descent starts this far (m) above the expected contact."""
     overshoot: float = 0.03
     """The descent gives up this far (m) below the expected contact."""
     fast_speed: float = 0.8
+    """Tip speed (m/s) for moves at travel height."""
+    approach_speed: float = 0.3
+    """Tip speed (m/s) for the vertical moves to the start of a descent (faster ones overshoot)."""
     slow_speed: float = 0.05
+    """Tip speed (m/s) of the contact-seeking descents."""
+    position_gain: float = 0.3
+    """Joint position-control gain (PyBullet POSITION_CONTROL)."""
     ik_every: int = 4
     """Physics steps between IK updates along a path."""
     ik_iterations: int = 50
@@ -184,7 +188,7 @@ class SuctionArm:
             p.POSITION_CONTROL,
             targetPositions=list(q),
             forces=list(self.forces),
-            positionGains=[0.3] * ARM_JOINTS,
+            positionGains=[self.config.position_gain] * ARM_JOINTS,
             physicsClientId=self.client,
         )
 
@@ -237,12 +241,17 @@ class SuctionArm:
             budget -= 1
             if until is not None and until():
                 return "stopped"
+        aim = np.array(target, dtype=float)
         while budget > 0:
-            if np.linalg.norm(self.tip_position() - target) < tolerance:
+            error = target - self.tip_position()
+            if np.linalg.norm(error) < tolerance:
                 return "ok"
             if until is not None and until():
                 return "stopped"
-            self._command(self._ik(target, yaw))
+            # IK with null-space terms leaves a residual of a few mm far from the base: aim past the
+            # target by the accumulated error (an integral term) so the tip itself converges.
+            aim = target + np.clip(aim - target + 0.5 * error, -0.02, 0.02)
+            self._command(self._ik(aim, yaw))
             for _ in range(cfg.ik_every):
                 self._step()
                 budget -= 1
@@ -318,11 +327,14 @@ class SuctionArm:
             return np.array([xyz[0], xyz[1], max(cfg.travel_height, xyz[2] + cfg.approach)])
 
         # --- pick
-        for target, speed in ((up(self.tip_position()), cfg.fast_speed), (up(pick_xyz), cfg.fast_speed)):
-            if self.move_line(target, yaw_pick, speed) == "motion_budget":
+        for target, precise in ((up(self.tip_position()), False), (up(pick_xyz), True)):
+            if self.move_line(target, yaw_pick, cfg.fast_speed, precise=precise) == "motion_budget":
                 return PrimitiveResult(False, False, "motion_budget", self.steps)
         above = pick_xyz + [0, 0, cfg.approach]
-        if self.move_line(above, yaw_pick, cfg.fast_speed, until=tip_touch, precise=True) == "motion_budget":
+        if (
+            self.move_line(above, yaw_pick, cfg.approach_speed, until=tip_touch, precise=True)
+            == "motion_budget"
+        ):
             return PrimitiveResult(False, False, "motion_budget", self.steps)
         if touched[0] is None:
             self.move_line(pick_xyz - [0, 0, cfg.overshoot], yaw_pick, cfg.slow_speed, until=tip_touch)
@@ -332,15 +344,19 @@ class SuctionArm:
         reason = "ok" if grasped else ("no_pick_contact" if touched[0] is None else "nothing_to_grasp")
         hold_pos = self.tip_position()
         self._hold_still(4)
+        # The cup grasped where it touched, which may differ a little from the commanded pick point:
+        # shift the place so the commanded point of the block (not the touched one) lands on target.
+        place_xyz = place_xyz.copy()
+        place_xyz[:2] += _rotate2(hold_pos[:2] - pick_xyz[:2], delta)
         # --- carry
-        for target in (up(hold_pos), up(place_xyz)):
-            if self.move_line(target, yaw_place, cfg.fast_speed) == "motion_budget":
+        for target, precise in ((up(hold_pos), False), (up(place_xyz), True)):
+            if self.move_line(target, yaw_place, cfg.fast_speed, precise=precise) == "motion_budget":
                 self.release()
                 self._restore_collisions()
                 return PrimitiveResult(grasped, False, "motion_budget", self.steps)
         # --- place
         above = place_xyz + [0, 0, cfg.approach]
-        self.move_line(above, yaw_place, cfg.fast_speed, until=self._held_contact, precise=True)
+        self.move_line(above, yaw_place, cfg.approach_speed, until=self._held_contact, precise=True)
         if not self._held_contact():
             self.move_line(
                 place_xyz - [0, 0, cfg.overshoot], yaw_place, cfg.slow_speed, until=self._held_contact
@@ -355,6 +371,12 @@ class SuctionArm:
         return PrimitiveResult(grasped, released and grasped, reason, self.steps)
 
     def _hold_still(self, steps: int) -> None:
+        """Command the current joint angles and step ``steps`` times."""
         self._command(self.joints())
         for _ in range(steps):
             self._step()
+
+
+def _rotate2(v: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])

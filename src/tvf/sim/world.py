@@ -15,11 +15,14 @@ import pybullet as p
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE, Workspace, rotate_xy
 from tvf.sim.camera import ObservationConfig, observe
-from tvf.sim.robot import PARK, MotionConfig, SuctionArm
+from tvf.sim.robot import MotionConfig, SuctionArm
 from tvf.tasks import BLOCK_SIZE, CELL_SIZE, CELL_THICKNESS, Task
 
 BLOCK_COLOUR = (255 / 255, 87 / 255, 89 / 255, 1.0)
 TABLE_COLOUR = (0.2, 0.2, 0.2, 1.0)
+TABLE_HALF_SIZE = 0.4
+HIDDEN = (0.0, 0.0, 50.0)
+"""Where the arm's base goes while the cameras render: above and behind every camera."""
 BLOCK_MASS = 0.01
 BLOCK_RADIUS = BLOCK_SIZE / math.sqrt(2)
 CELL_RADIUS = CELL_SIZE / math.sqrt(2)
@@ -104,9 +107,13 @@ class World:
         return col, vis
 
     def _make_table(self) -> int:
+        # An infinite collision plane, but a visible table top only a little larger than the workspace:
+        # TinyRenderer's cost grows with the screen area that triangles cover.
         col = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=self.client)
+        cx, cy = self.workspace.center
         vis = p.createVisualShape(
-            p.GEOM_BOX, halfExtents=[1.5, 1.5, 0.0005], visualFramePosition=[0, 0, -0.0005],
+            p.GEOM_BOX, halfExtents=[TABLE_HALF_SIZE, TABLE_HALF_SIZE, 0.0005],
+            visualFramePosition=[cx, cy, -0.0005],
             rgbaColor=TABLE_COLOUR, physicsClientId=self.client,
         )  # fmt: skip
         body = p.createMultiBody(0, col, vis, [0, 0, 0], physicsClientId=self.client)
@@ -204,13 +211,18 @@ class World:
 
     # ---------------------------------------------------------------- sensing
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
-        """The fused top-down image (colour uint8 HxWx3, height float32 HxW) with the arm parked."""
-        q = self.arm.joints()
-        self.arm.set_joints(PARK)
+        """The fused top-down image (colour uint8 HxWx3, height float32 HxW) without the arm.
+
+        The arm is lifted out of every camera's view for the render (no physics step happens
+        meanwhile), which is cheaper than rendering it parked and never occludes the workspace.
+        """
+        p.resetBasePositionAndOrientation(self.arm.body, HIDDEN, [0, 0, 0, 1], physicsClientId=self.client)
         try:
             return observe(self.client, self.config.observation, self.workspace)
         finally:
-            self.arm.set_joints(q)
+            p.resetBasePositionAndOrientation(
+                self.arm.body, [0, 0, 0], [0, 0, 0, 1], physicsClientId=self.client
+            )
 
     def goal_observation(self) -> tuple[np.ndarray, np.ndarray]:
         """The image of the finished structure: blocks settled on their targets, then the scene restored."""
