@@ -128,6 +128,28 @@ def test_same_seed_same_scene_same_trajectory():
         b.close()
 
 
+def _run_oracle(env: TvfEnv, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    obs, _ = env.reset(seed=seed)
+    for _ in range(env.task.horizon):
+        obs = env.step(env.oracle_action())[0]
+    return obs["height"], env.world.block_poses()[0]
+
+
+def test_a_reused_environment_repeats_a_seed_exactly():
+    """Earlier episodes in the same process must not leak into a later one (bit-identical)."""
+    used, fresh = TvfEnv("stack-stair"), TvfEnv("stack-stair")
+    try:
+        _run_oracle(used, 0)
+        _run_oracle(used, 2)
+        height_used, poses_used = _run_oracle(used, 4)
+        height_fresh, poses_fresh = _run_oracle(fresh, 4)
+        assert np.array_equal(height_used, height_fresh)
+        assert np.array_equal(poses_used, poses_fresh)
+    finally:
+        used.close()
+        fresh.close()
+
+
 def test_random_action_moves_a_block_to_free_space(envs):
     env = envs("stack-tower")
     env.reset(seed=2)

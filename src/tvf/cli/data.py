@@ -1,0 +1,154 @@
+"""Commands about demonstration data: generate it (`tvf demos`), inspect it (`tvf data info|show`)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+from tvf.cli.world import check_output_dir, use_task_file
+from tvf.errors import TvfError
+
+
+@dataclass(frozen=True)
+class DemosCmd:
+    """Generate expert demonstrations into OUT/SPLIT/TASK/SEED.h5 (format: docs/data.md); re-run to resume.
+
+    Only successful episodes are kept: the first EPISODES successes by seed, whatever --workers is.
+    """
+
+    tasks: str = "train"
+    """train | unseen | all, or task names separated by commas."""
+    split: str = "train"
+    """train: the oracle with two random actions mixed in (data for the visual foresight), even seeds;
+    test: the pure oracle, odd seeds. Failed seeds are listed in OUT/SPLIT/failures.jsonl."""
+    episodes: int = 10
+    """Successful episodes wanted per task."""
+    out: Path = Path("data/demos")
+    """Dataset root; this split goes to OUT/SPLIT."""
+    workers: int = 1
+    """Parallel processes (one PyBullet client each)."""
+    first_seed: int = 0
+    """Seeds start here (the first even one for train, the first odd one for test)."""
+    max_tries: int = 3
+    """Give up on a task after this many times EPISODES seeds (at least EPISODES + 5)."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md)."""
+
+    def run(self) -> None:
+        from tvf.data.format import SPLITS
+        from tvf.data.generation import GenerationPlan, generate
+        from tvf.tasks import resolve_tasks
+
+        use_task_file(self.task_file)
+        if self.split not in SPLITS:
+            raise TvfError(f"--split must be one of {', '.join(SPLITS)}, got {self.split!r}")
+        if self.episodes < 1 or self.workers < 1 or self.max_tries < 1:
+            raise TvfError("--episodes, --workers and --max-tries must be at least 1")
+        tasks = tuple(t.name for t in resolve_tasks(self.tasks))
+        check_output_dir(self.out / self.split)
+        plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries)
+        tf = str(self.task_file) if self.task_file else None
+        report = generate(plan, self.workers, progress=True, task_file=tf)
+        print(
+            f"{plan.folder}: {report.generated} episodes written, {report.skipped} already there, "
+            f"{len(report.failures)} failed seeds; {report.seconds:.0f} s"
+        )
+        if report.short:
+            short = ", ".join(f"{t} ({n}/{self.episodes})" for t, n in report.short.items())
+            print(f"tvf: warning: too few successful episodes after all seeds: {short}", file=sys.stderr)
+            raise SystemExit(1)
+
+
+def _human(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return str(n)
+
+
+@dataclass(frozen=True)
+class DataInfo:
+    """Summarise a dataset: episodes, transitions and size on disk per task.
+
+    DIR is a split folder (OUT/train) or a root holding train/ and test/ (both are listed).
+    """
+
+    dir: tyro.conf.Positional[Path]
+    """Dataset folder."""
+    verify: bool = False
+    """Also read every image (checksums) to find corrupt files."""
+    json: bool = False
+    """Print JSON instead of a table."""
+
+    def run(self) -> None:
+        import json
+
+        from tvf.data.dataset import scan, split_dirs
+        from tvf.data.format import read_episode
+
+        docs = []
+        for folder in split_dirs(self.dir):
+            ds = scan(folder)
+            if self.verify:
+                for e in ds.infos():
+                    read_episode(e.path)
+            docs.append({"dir": str(folder), **ds.summary()})
+        if self.json:
+            print(json.dumps(docs, indent=1))
+            return
+        for doc in docs:
+            print(f"{doc['dir']}  (split {doc['split']})")
+            print(f"  {'task':<20} {'episodes':>8} {'transitions':>11} {'random':>6} {'size':>10}")
+            for task, row in doc["tasks"].items():
+                print(
+                    f"  {task:<20} {row['episodes']:>8} {row['transitions']:>11} "
+                    f"{row['random_transitions']:>6} {_human(row['bytes']):>10}"
+                )
+            print(
+                f"  {'all':<20} {doc['episodes']:>8} {doc['transitions']:>11} {'':>6} "
+                f"{_human(doc['bytes']):>10}  ({_human(doc['bytes_per_transition'])} per transition)"
+            )
+            if self.verify:
+                print("  verified: every file read back without error")
+
+
+@dataclass(frozen=True)
+class DataShow:
+    """Render one episode: colour and height side by side per frame, picks (x) and places (o, with a
+    tick for the block's turn) drawn; oracle steps green/blue, random steps orange/magenta."""
+
+    file: tyro.conf.Positional[Path]
+    """An episode file (OUT/SPLIT/TASK/SEED.h5)."""
+    out: Path
+    """Picture to write: .gif (one frame per step) or .png (all frames stacked)."""
+    fps: float = 1.0
+    """GIF frames per second."""
+
+    def run(self) -> None:
+        from tvf.data.format import read_episode
+        from tvf.data.show import save_episode_view
+
+        if self.out.suffix.lower() not in (".gif", ".png"):
+            raise TvfError(f"--out must end in .gif or .png, got {self.out}")
+        episode = read_episode(self.file)
+        check_output_dir(self.out.parent if str(self.out.parent) else Path("."))
+        save_episode_view(episode, self.out, self.fps)
+        print(f"wrote {self.out} ({episode.task} seed {episode.seed}, {episode.n_steps} steps)")
+
+
+@dataclass(frozen=True)
+class DataCmd:
+    """Inspect demonstration datasets: `tvf data info DIR`, `tvf data show FILE --out X.gif`."""
+
+    command: tyro.conf.OmitArgPrefixes[
+        Annotated[DataInfo, tyro.conf.subcommand("info")] | Annotated[DataShow, tyro.conf.subcommand("show")]
+    ]
+    """What to do with the dataset."""
+
+    def run(self) -> None:
+        self.command.run()

@@ -1,0 +1,257 @@
+"""Datasets: a folder of episode files (``SPLIT/TASK/SEED.h5``) plus its ``manifest.json``.
+
+A dataset directory holds one split. ``tvf demos --out ROOT --split S`` writes ``ROOT/S/``; both
+:func:`open_dataset` and ``tvf data info`` accept either the split folder or the root above it.
+The manifest is a summary written after each generation run; the files are the truth, so a missing
+or stale manifest is rebuilt by reading the file headers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tvf.data.format import (
+    EPISODE_SUFFIX,
+    FORMAT_VERSION,
+    SPLITS,
+    DataError,
+    Episode,
+    EpisodeInfo,
+    read_episode,
+    read_info,
+    tmp_path,
+)
+
+MANIFEST = "manifest.json"
+FAILURES = "failures.jsonl"
+
+
+def episode_files(root: Path) -> list[Path]:
+    """Every episode file under ``root/TASK/`` (temporary and hidden files excluded), sorted."""
+    return sorted(p for p in root.glob(f"*/*{EPISODE_SUFFIX}") if not p.name.startswith("."))
+
+
+def _task_order(names: Iterable[str]) -> list[str]:
+    """Task names in the task table's order, unknown (user) tasks after them alphabetically."""
+    from tvf.tasks import all_tasks
+
+    table = {name: i for i, name in enumerate(all_tasks())}
+    return sorted(set(names), key=lambda n: (table.get(n, len(table)), n))
+
+
+@dataclass
+class DemoDataset:
+    """The episodes of one split, grouped by task (sorted by seed)."""
+
+    root: Path
+    split: str
+    episodes: dict[str, list[EpisodeInfo]]
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self.episodes)
+
+    def __len__(self) -> int:
+        return sum(len(v) for v in self.episodes.values())
+
+    def infos(self) -> list[EpisodeInfo]:
+        return [e for eps in self.episodes.values() for e in eps]
+
+    def n_transitions(self, task: str | None = None) -> int:
+        eps = self.episodes.get(task, []) if task else self.infos()
+        return sum(e.steps for e in eps)
+
+    def size_bytes(self, task: str | None = None) -> int:
+        eps = self.episodes.get(task, []) if task else self.infos()
+        return sum(e.bytes for e in eps)
+
+    def info(self, task: str, seed: int) -> EpisodeInfo:
+        for e in self.episodes.get(task, []):
+            if e.seed == seed:
+                return e
+        raise DataError(f"{self.root}: no episode of task {task!r} with seed {seed}")
+
+    def load(self, task: str, seed: int) -> Episode:
+        return read_episode(self.info(task, seed).path)
+
+    def load_all(self, infos: Iterable[EpisodeInfo] | None = None, lazy: bool = False) -> list[Episode]:
+        """Read the given episodes (default: all); ``lazy`` leaves the images on disk until indexed."""
+        return [read_episode(e.path, lazy) for e in (self.infos() if infos is None else infos)]
+
+    def summary(self) -> dict[str, Any]:
+        """Per-task and total counts (what ``tvf data info`` prints and the manifest stores)."""
+        tasks = {
+            t: {
+                "episodes": len(eps),
+                "transitions": sum(e.steps for e in eps),
+                "random_transitions": sum(e.random_steps for e in eps),
+                "bytes": sum(e.bytes for e in eps),
+            }
+            for t, eps in self.episodes.items()
+        }
+        n = self.n_transitions()
+        return {
+            "split": self.split,
+            "episodes": len(self),
+            "transitions": n,
+            "bytes": self.size_bytes(),
+            "bytes_per_transition": self.size_bytes() / n if n else 0.0,
+            "tasks": tasks,
+        }
+
+
+def build_manifest(dataset: DemoDataset, failures: int = 0) -> dict[str, Any]:
+    from tvf import __version__
+
+    return {
+        "format_version": FORMAT_VERSION,
+        "tvf_version": __version__,
+        **dataset.summary(),
+        "failures": failures,
+        "files": [e.to_dict(dataset.root) for e in dataset.infos()],
+    }
+
+
+def write_manifest(dataset: DemoDataset, failures: int = 0) -> Path:
+    """Write ``manifest.json`` atomically (temporary file + rename, ordinary permissions)."""
+    path = dataset.root / MANIFEST
+    tmp = tmp_path(path)
+    try:
+        tmp.write_text(json.dumps(build_manifest(dataset, failures), indent=1) + "\n")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _manifest_infos(root: Path, files: list[Path]) -> list[EpisodeInfo] | None:
+    """The manifest's episode list if it describes exactly ``files`` (same names and sizes), else None."""
+    path = root / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: unreadable manifest ({exc}); delete it to rebuild from the files") from None
+    version = doc.get("format_version") if isinstance(doc, dict) else None
+    if version != FORMAT_VERSION:
+        raise DataError(
+            f"{path}: dataset format version {version}, this tvf reads version {FORMAT_VERSION}; "
+            "regenerate the dataset with `tvf demos`"
+        )
+    try:
+        infos = [
+            EpisodeInfo(
+                root / d["path"],
+                d["task"],
+                int(d["seed"]),
+                d["split"],
+                int(d["steps"]),
+                int(d["random_steps"]),
+                int(d["bytes"]),
+            )
+            for d in doc["files"]
+        ]
+    except (KeyError, TypeError, ValueError):
+        return None
+    on_disk = {p: p.stat().st_size for p in files}
+    if {e.path: e.bytes for e in infos} != on_disk:
+        return None
+    return infos
+
+
+def scan(root: Path, split: str | None = None, use_manifest: bool = True) -> DemoDataset:
+    """Index the episode files of one split folder (headers are read unless the manifest is current)."""
+    files = episode_files(root)
+    infos = _manifest_infos(root, files) if use_manifest else None
+    if infos is None:
+        infos = [read_info(p) for p in files]
+    split = split or (root.name if root.name in SPLITS else None)
+    for e in infos:
+        if split is None:
+            split = e.split
+        if e.split != split:
+            raise DataError(f"{e.path}: episode of split {e.split!r} inside the {split!r} dataset {root}")
+        if e.path.parent.name != e.task:
+            raise DataError(
+                f"{e.path}: episode of task {e.task!r} inside the folder of {e.path.parent.name!r}"
+            )
+    grouped: dict[str, list[EpisodeInfo]] = {t: [] for t in _task_order(e.task for e in infos)}
+    for e in infos:
+        grouped[e.task].append(e)
+    for eps in grouped.values():
+        eps.sort(key=lambda e: e.seed)
+    return DemoDataset(root, split or "train", grouped)
+
+
+def split_dirs(path: str | Path) -> list[Path]:
+    """The split folders at ``path``: itself if it is one, else its ``train``/``test`` children."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DataError(f"{path}: no such dataset directory")
+    if (path / MANIFEST).is_file() or episode_files(path) or path.name in SPLITS:
+        return [path]
+    found = [path / s for s in SPLITS if (path / s).is_dir()]
+    if not found:
+        raise DataError(f"{path}: no episodes here (expected TASK/SEED.h5 files or train/ and test/ folders)")
+    return found
+
+
+def open_dataset(
+    path: str | Path, split: str | None = None, tasks: Sequence[str] | None = None
+) -> DemoDataset:
+    """Open a dataset: a split folder, or a root holding ``train/`` and ``test/`` (then give ``split``).
+
+    ``tasks`` keeps only those tasks and fails if one has no episodes.
+    """
+    path = Path(path)
+    dirs = split_dirs(path)
+    if split is not None:
+        if split not in SPLITS:
+            raise DataError(f"split {split!r} is not one of {', '.join(SPLITS)}")
+        dirs = [d for d in dirs if d.name == split] or ([path / split] if (path / split).is_dir() else [])
+        if not dirs:
+            raise DataError(f"{path}: no {split!r} split here")
+    if len(dirs) != 1:
+        raise DataError(f"{path}: holds several splits ({', '.join(d.name for d in dirs)}); choose one")
+    dataset = scan(dirs[0], split)
+    if tasks is not None:
+        missing = [t for t in tasks if not dataset.episodes.get(t)]
+        if missing:
+            raise DataError(f"{dataset.root}: no episodes of {', '.join(missing)}")
+        dataset.episodes = {t: dataset.episodes[t] for t in tasks}
+    if not len(dataset):
+        raise DataError(f"{dataset.root}: the dataset holds no episodes")
+    return dataset
+
+
+def demo_subset(
+    dataset: DemoDataset, n_demos: int, run_seed: int, tasks: Sequence[str] | None = None
+) -> dict[str, list[EpisodeInfo]]:
+    """The ``n_demos`` episodes per task that training run ``run_seed`` uses (facts §4).
+
+    Each task draws from its own stream, seeded by (run_seed, crc32(task name)), a random permutation
+    of its episodes (sorted by seed) and keeps the first ``n_demos``. So a task's subset does not
+    depend on which other tasks are chosen, and smaller subsets are nested in larger ones.
+    """
+    if n_demos < 1:
+        raise DataError(f"n_demos must be at least 1, got {n_demos}")
+    chosen: dict[str, list[EpisodeInfo]] = {}
+    for task in tasks if tasks is not None else dataset.tasks:
+        eps = dataset.episodes.get(task, [])
+        if len(eps) < n_demos:
+            raise DataError(
+                f"{dataset.root}: task {task!r} has {len(eps)} episodes, {n_demos} demos requested"
+            )
+        rng = np.random.default_rng([run_seed, zlib.crc32(task.encode())])
+        keep = np.sort(rng.permutation(len(eps))[:n_demos])
+        chosen[task] = [eps[i] for i in keep]
+    return chosen

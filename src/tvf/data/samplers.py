@@ -1,0 +1,237 @@
+"""Training samples for the GCTN and the visual-foresight (VF) model, SE(2)-augmented in batches.
+
+Both samplers are ``torch.utils.data.IterableDataset`` s that yield whole batches (use a DataLoader
+with ``batch_size=None``), drawn as the reference does (facts §5-6): a task uniformly, an episode of
+it uniformly, then a step uniformly. ``sample(batch_size, rng)`` draws one batch directly; ``item``
+gives a fixed, un-augmented sample for evaluation.
+
+* :class:`GctnSampler`: (current, goal = last frame, pick pixel, place pixel, rotation bin) from the
+  oracle steps only (states reached after a random action are included).
+* :class:`VfSampler`: (current, action, next) from every step, oracle and random, and with
+  probability 1/8 an identity sample (place = pick, no turn, next = current).
+
+A batch is a dict of tensors. Images are raw units: ``*_color`` (B, H, W, 3) float32 0..255 and
+``*_height`` (B, H, W) float32 metres (``tvf.models.images.to_rgbh`` normalises them). Pixels are
+(B, 2) int64 (row, col); ``rot_bin`` (B,) int64; the VF's ``yaw`` (B,) float32 is the block's turn
+in radians. ``aug_yaw`` (B,) and ``aug_shift`` (B, 2) record the transform applied, ``episode`` and
+``step`` (B,) where the sample came from (``episode`` indexes ``sampler.episodes``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from tvf.data.augment import Se2, sample_se2, transform_points, warp
+from tvf.data.format import DataError, Episode, subpixel_to_pixel, world_to_subpixel
+from tvf.geometry import WORKSPACE
+
+IDENTITY_FRACTION = 1 / 8
+"""Share of VF samples that are identity samples (facts §5)."""
+VF_MARGIN = 20
+"""The VF keeps points this many pixels around the pick and place inside the image (facts §5)."""
+
+
+class _Sampler(IterableDataset):
+    """Shared machinery: episodes grouped by task, the reference's draw, batched augmentation."""
+
+    margin: float = 0.0
+
+    def __init__(
+        self,
+        episodes: Sequence[Episode],
+        batch_size: int = 1,
+        augment: bool = True,
+        seed: int = 0,
+        n_rotations: int = 36,
+    ) -> None:
+        if not episodes:
+            raise DataError("a sampler needs at least one episode")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be at least 1, got {batch_size}")
+        self.episodes = list(episodes)
+        self.batch_size = batch_size
+        self.augment = augment
+        self.seed = seed
+        self.n_rotations = n_rotations
+        tasks = sorted({e.task for e in self.episodes})
+        self.tasks = tasks
+        self._by_task = [[i for i, e in enumerate(self.episodes) if e.task == t] for t in tasks]
+        self._steps = [self.eligible_steps(e) for e in self.episodes]
+        self._by_task = [[i for i in ids if len(self._steps[i])] for ids in self._by_task]
+        if not any(self._by_task):
+            raise DataError("no episode has a step this sampler can use")
+        self._by_task = [ids for ids in self._by_task if ids]
+        self._yaws = [e.relative_yaws() for e in self.episodes]
+        self._bins = [e.rotation_bins(n_rotations) for e in self.episodes]
+        self._pick_sub = [world_to_subpixel(e.pick[:, :2]) for e in self.episodes]
+        self._place_sub = [world_to_subpixel(e.place[:, :2]) for e in self.episodes]
+
+    # ---- what subclasses define
+    def eligible_steps(self, episode: Episode) -> np.ndarray:
+        raise NotImplementedError
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
+    ) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    # ---- drawing
+    def __len__(self) -> int:
+        """Number of distinct (episode, step) samples (identity samples not counted)."""
+        return sum(len(s) for s in self._steps)
+
+    def draw(self, batch_size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(episode, step, identity) per sample: a task uniformly, an episode of it uniformly, an eligible
+        step uniformly; ``identity`` marks identity samples (VF only)."""
+        ep = np.empty(batch_size, np.int64)
+        step = np.empty(batch_size, np.int64)
+        for k in range(batch_size):
+            ids = self._by_task[rng.integers(len(self._by_task))]
+            ep[k] = ids[rng.integers(len(ids))]
+            steps = self._steps[ep[k]]
+            step[k] = steps[rng.integers(len(steps))]
+        return ep, step, np.zeros(batch_size, bool)
+
+    def sample(self, batch_size: int | None = None, rng: np.random.Generator | None = None) -> dict:
+        """One batch drawn like the reference, augmented if ``self.augment``."""
+        rng = rng if rng is not None else np.random.default_rng(self.seed)
+        ep, step, identity = self.draw(batch_size or self.batch_size, rng)
+        return self._build(ep, step, identity, rng, self.augment)
+
+    def item(self, index: int) -> dict[str, torch.Tensor]:
+        """The ``index``-th (episode, step) sample in a fixed order, without augmentation (batch of 1)."""
+        for e, steps in enumerate(self._steps):
+            if index < len(steps):
+                one = np.array([e]), np.array([steps[index]]), np.zeros(1, bool)
+                return self._build(*one, np.random.default_rng(0), False)
+            index -= len(steps)
+        raise IndexError("sample index out of range")
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        """Endless batches; each DataLoader worker draws from its own stream (seed, worker id)."""
+        info = get_worker_info()
+        rng = np.random.default_rng([self.seed, info.id if info else 0])
+        while True:
+            yield self.sample(self.batch_size, rng)
+
+    # ---- helpers for subclasses
+    def _frames(self, ep: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        color = np.stack([self.episodes[e].color[f] for e, f in zip(ep, frame, strict=True)])
+        height = np.stack([self.episodes[e].height[f] for e, f in zip(ep, frame, strict=True)])
+        return color, height
+
+    def _transform(
+        self, points: np.ndarray, rng: np.random.Generator, augment: bool
+    ) -> tuple[Se2, np.ndarray]:
+        """A transform per sample (identity without augmentation) and the moved key pixels (B, K, 2)."""
+        se2 = sample_se2(points, rng, margin=self.margin) if augment else Se2.identity(len(points))
+        px = subpixel_to_pixel(transform_points(points, se2))
+        # Rejection sampling keeps the points inside; the clip only acts on the untransformed fallback.
+        px[..., 0] = np.clip(px[..., 0], 0, WORKSPACE.rows - 1)
+        px[..., 1] = np.clip(px[..., 1], 0, WORKSPACE.cols - 1)
+        return se2, px
+
+    @staticmethod
+    def _stack_images(*pairs: tuple[np.ndarray, np.ndarray]) -> torch.Tensor:
+        """(color, height) pairs -> one (B, 4 * len(pairs), H, W) float32 tensor for a single warp."""
+        parts = []
+        for color, height in pairs:
+            parts.append(torch.from_numpy(color).permute(0, 3, 1, 2).to(torch.float32))
+            parts.append(torch.from_numpy(height).unsqueeze(1))
+        return torch.cat(parts, dim=1)
+
+    @staticmethod
+    def _split_images(images: torch.Tensor, names: Sequence[str]) -> dict[str, torch.Tensor]:
+        out = {}
+        for i, name in enumerate(names):
+            block = images[:, 4 * i : 4 * i + 4]
+            out[f"{name}_color"] = block[:, :3].permute(0, 2, 3, 1).contiguous()
+            out[f"{name}_height"] = block[:, 3].contiguous()
+        return out
+
+    @staticmethod
+    def _meta(ep: np.ndarray, step: np.ndarray, se2: Se2) -> dict[str, torch.Tensor]:
+        return {
+            "episode": torch.from_numpy(ep.astype(np.int64)),
+            "step": torch.from_numpy(step.astype(np.int64)),
+            "aug_yaw": torch.from_numpy(se2.yaw.astype(np.float32)),
+            "aug_shift": torch.from_numpy(se2.shift.astype(np.float32)),
+        }
+
+
+class GctnSampler(_Sampler):
+    """GCTN samples: current and goal images, pick and place pixels, rotation bin (oracle steps only)."""
+
+    margin = 0.0
+
+    def eligible_steps(self, episode: Episode) -> np.ndarray:
+        return np.flatnonzero(~episode.random)
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
+    ) -> dict[str, torch.Tensor]:
+        points = np.stack(
+            [np.stack([self._pick_sub[e][s], self._place_sub[e][s]]) for e, s in zip(ep, step, strict=True)]
+        )
+        se2, pixels = self._transform(points, rng, augment)
+        goal = np.array([self.episodes[e].n_steps for e in ep])
+        images = warp(self._stack_images(self._frames(ep, step), self._frames(ep, goal)), se2)
+        bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
+        return {
+            **self._split_images(images, ("current", "goal")),
+            "pick": torch.from_numpy(pixels[:, 0]),
+            "place": torch.from_numpy(pixels[:, 1]),
+            "rot_bin": torch.from_numpy(bins),
+            **self._meta(ep, step, se2),
+        }
+
+
+class VfSampler(_Sampler):
+    """VF samples: current image, action (pick, place, turn), next image; 1/8 identity samples."""
+
+    margin = VF_MARGIN
+
+    def __init__(
+        self,
+        episodes: Sequence[Episode],
+        batch_size: int = 1,
+        augment: bool = True,
+        seed: int = 0,
+        n_rotations: int = 36,
+        identity_fraction: float = IDENTITY_FRACTION,
+    ) -> None:
+        super().__init__(episodes, batch_size, augment, seed, n_rotations)
+        self.identity_fraction = identity_fraction
+
+    def eligible_steps(self, episode: Episode) -> np.ndarray:
+        return np.arange(episode.n_steps)
+
+    def draw(self, batch_size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ep, step, _ = super().draw(batch_size, rng)
+        return ep, step, rng.random(batch_size) < self.identity_fraction
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
+    ) -> dict[str, torch.Tensor]:
+        pick = np.stack([self._pick_sub[e][s] for e, s in zip(ep, step, strict=True)])
+        place = np.stack([self._place_sub[e][s] for e, s in zip(ep, step, strict=True)])
+        place = np.where(identity[:, None], pick, place)
+        points = np.stack([pick, place], axis=1)
+        se2, pixels = self._transform(points, rng, augment)
+        yaw = np.array([self._yaws[e][s] for e, s in zip(ep, step, strict=True)])
+        bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
+        nxt = np.where(identity, step, step + 1)
+        images = warp(self._stack_images(self._frames(ep, step), self._frames(ep, nxt)), se2)
+        return {
+            **self._split_images(images, ("current", "next")),
+            "pick": torch.from_numpy(pixels[:, 0]),
+            "place": torch.from_numpy(pixels[:, 1]),
+            "yaw": torch.from_numpy(np.where(identity, 0.0, yaw).astype(np.float32)),
+            "rot_bin": torch.from_numpy(np.where(identity, 0, bins).astype(np.int64)),
+            "identity": torch.from_numpy(identity),
+            **self._meta(ep, step, se2),
+        }

@@ -1,0 +1,155 @@
+"""Generation: seeds, schedules, the in-order commit (any worker count), resuming, and real episodes."""
+
+from __future__ import annotations
+
+import json
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+from data_factory import make_episode
+
+from tvf.data import GenerationPlan, generate, open_dataset, read_episode, split_seeds
+from tvf.data.dataset import FAILURES, MANIFEST
+from tvf.data.format import episode_name, tmp_path, write_h5
+from tvf.data.generation import Outcome, action_schedule, read_failures
+from tvf.tasks import get_task
+
+
+def test_split_seeds_have_the_split_parity():
+    assert split_seeds("train", 0, 4) == [0, 2, 4, 6]
+    assert split_seeds("test", 0, 3) == [1, 3, 5]
+    assert split_seeds("train", 7, 2) == [8, 10]
+    assert split_seeds("test", 7, 2) == [7, 9]
+
+
+def test_action_schedules():
+    task = get_task("stack-palace")
+    train = action_schedule(task, "train", 4)
+    assert len(train) == task.n_blocks + 2 and sum(train) == 2 and not train[-1]
+    assert train == action_schedule(task, "train", 4)
+    assert not any(a and b for a, b in zip(train, train[1:], strict=False))
+    assert action_schedule(task, "test", 5) == [False] * task.n_blocks
+    assert len({tuple(action_schedule(task, "train", s)) for s in range(0, 40, 2)}) > 1
+
+
+# --------------------------------------------------------------- the scheduler, with a fake episode job
+FAILING = {2, 8, 10}
+
+
+def fake_job(task: str, split: str, seed: int, folder: str) -> Outcome:
+    """Fails on FAILING seeds; finishes in a seed-dependent order; writes a small synthetic episode."""
+    time.sleep(((seed * 7919) % 13) / 400)
+    if seed in FAILING:
+        return Outcome(task, seed, False, reason="fake failure", steps=1)
+    final = Path(folder) / task / episode_name(seed)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = tmp_path(final).with_name(f".{final.name}.{seed}.tmp")
+    ep = make_episode(task, seed, steps=2, split=split, rng_seed=seed)
+    ep.color, ep.height = np.zeros_like(ep.color), np.zeros_like(ep.height)  # small files
+    write_h5(tmp, ep)
+    return Outcome(task, seed, True, steps=2, tmp=str(tmp))
+
+
+def _run(out, episodes=3, threads=1, tasks=("stack-stair", "stack-tower"), max_tries=3):
+    plan = GenerationPlan(tuple(tasks), "train", episodes, out, max_tries=max_tries)
+    if threads <= 1:
+        return generate(plan, 1, progress=False, job=fake_job, log=lambda s: None)
+    with ThreadPoolExecutor(threads) as pool:
+        return generate(plan, threads, progress=False, job=fake_job, executor=pool, log=lambda s: None)
+
+
+def _kept(out) -> dict[str, list[int]]:
+    ds = open_dataset(out / "train")
+    return {t: [e.seed for e in eps] for t, eps in ds.episodes.items()}
+
+
+def test_kept_episodes_do_not_depend_on_the_worker_count(tmp_path):
+    serial = _run(tmp_path / "a", threads=1)
+    parallel = _run(tmp_path / "b", threads=4)
+    expected = {"stack-stair": [0, 4, 6], "stack-tower": [0, 4, 6]}
+    assert _kept(tmp_path / "a") == _kept(tmp_path / "b") == expected
+    assert serial.generated == parallel.generated == 6
+    assert {(f["task"], f["seed"]) for f in serial.failures} == {("stack-stair", 2), ("stack-tower", 2)}
+    for out in (tmp_path / "a", tmp_path / "b"):
+        assert not list(out.rglob(".*.tmp"))  # extra successes past the quota were discarded
+        manifest = json.loads((out / "train" / MANIFEST).read_text())
+        assert manifest["episodes"] == 6 and manifest["failures"] == 2
+
+
+def test_rerun_does_nothing_and_extends_on_demand(tmp_path):
+    _run(tmp_path, episodes=2)
+    again = _run(tmp_path, episodes=2)
+    assert (again.generated, again.skipped, again.failures) == (0, 4, [])
+    more = _run(tmp_path, episodes=4, threads=3)
+    assert more.skipped == 4 and more.generated == 4
+    assert _kept(tmp_path)["stack-stair"] == [0, 4, 6, 12]  # 8 and 10 are known failures
+    lines = (tmp_path / "train" / FAILURES).read_text().splitlines()
+    assert len(lines) == len(set(lines)) == 6  # failures are never retried, so never logged twice
+
+
+def test_interrupted_run_leaves_only_whole_episodes(tmp_path):
+    _run(tmp_path, episodes=1)
+    folder = tmp_path / "train" / "stack-stair"
+    stale = folder / ".000004.h5.999.tmp"
+    stale.write_bytes(b"half an episode")
+    (tmp_path / "train" / MANIFEST).unlink()
+    report = _run(tmp_path, episodes=2)
+    assert not stale.exists()
+    assert report.generated == 2 and _kept(tmp_path)["stack-stair"] == [0, 4]
+
+
+def test_known_failures_are_skipped(tmp_path):
+    folder = tmp_path / "train"
+    folder.mkdir(parents=True)
+    (folder / FAILURES).write_text(json.dumps({"task": "stack-stair", "seed": 0, "reason": "x"}) + "\n")
+    _run(tmp_path, episodes=1, tasks=("stack-stair",))
+    assert _kept(tmp_path) == {"stack-stair": [4]}
+    assert ("stack-stair", 0) in read_failures(folder)
+
+
+def test_too_few_successes_are_reported(tmp_path):
+    report = _run(tmp_path, episodes=1, tasks=("stack-stair",), max_tries=1)
+    assert not report.short
+    global FAILING
+    saved, FAILING = FAILING, set(range(0, 100, 2))
+    try:
+        report = _run(tmp_path / "x", episodes=2, tasks=("stack-stair",), max_tries=1)
+    finally:
+        FAILING = saved
+    assert report.short == {"stack-stair": 0} and len(report.failures) == 7  # max(1 * 2, 2 + 5) seeds
+
+
+# --------------------------------------------------------------------------- real episodes (fixture)
+def test_real_train_episodes(real_root):
+    ds = open_dataset(real_root / "train")
+    assert ds.split == "train" and ds.tasks == ["stack-stair"] and len(ds) == 2
+    task = get_task("stack-stair")
+    for info in ds.infos():
+        ep = read_episode(info.path)
+        assert ep.success and ep.progress[-1] == 1.0 and ep.seed % 2 == 0
+        assert ep.n_steps <= task.n_blocks + 2 and ep.n_random <= 2
+        assert np.all(ep.pick[:, 3] == 0)
+        assert ep.attrs["observation"]["cameras"] and ep.attrs["n_blocks"] == task.n_blocks
+        assert ep.blocks.shape == (ep.n_steps + 1, task.n_blocks, 4)
+        assert ep.height.max() > 0.03  # blocks are visible in the height map
+    assert (real_root / "train" / MANIFEST).is_file()
+
+
+def test_real_rerun_generates_nothing(real_root):
+    report = generate(GenerationPlan(("stack-stair",), "train", 2, real_root), progress=False)
+    assert report.generated == 0 and report.skipped == 2
+
+
+@pytest.mark.slow
+def test_real_two_workers_match_one_worker(tmp_path):
+    plan = lambda out: GenerationPlan(("stack-stair", "stack-tower"), "test", 2, out)  # noqa: E731
+    generate(plan(tmp_path / "one"), workers=1, progress=False)
+    generate(plan(tmp_path / "two"), workers=2, progress=False)
+    one, two = open_dataset(tmp_path / "one" / "test"), open_dataset(tmp_path / "two" / "test")
+    for a, b in zip(one.infos(), two.infos(), strict=True):
+        assert (a.task, a.seed) == (b.task, b.seed)
+        ea, eb = read_episode(a.path), read_episode(b.path)
+        assert np.array_equal(ea.pick, eb.pick) and np.array_equal(ea.color, eb.color)

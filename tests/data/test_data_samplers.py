@@ -1,0 +1,182 @@
+"""Samplers and the SE(2) augmentation: shapes, the reference's draw, and geometric consistency."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from data_factory import make_episode
+from torch.utils.data import DataLoader
+
+from tvf.data import GctnSampler, Se2, VfSampler, open_dataset, sample_se2, transform_pixels, warp
+from tvf.data.augment import IMAGE_CENTER, inside, transform_points
+from tvf.data.format import world_to_subpixel
+from tvf.geometry import bin_to_yaw, rotate_pixels, world_to_pixel, wrap_symmetric
+from tvf.tasks import BLOCK_SYMMETRY
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    eps = [make_episode("stack-stair", s, 5, rng_seed=s) for s in range(3)]
+    return eps + [make_episode("stack-tower", 10, 4, rng_seed=10)]
+
+
+def test_gctn_batch_shapes_and_types(synthetic):
+    batch = GctnSampler(synthetic, batch_size=3).sample(rng=np.random.default_rng(0))
+    for name in ("current", "goal"):
+        assert (
+            batch[f"{name}_color"].shape == (3, 160, 160, 3) and batch[f"{name}_color"].dtype == torch.float32
+        )
+        assert (
+            batch[f"{name}_height"].shape == (3, 160, 160) and batch[f"{name}_height"].dtype == torch.float32
+        )
+    assert batch["pick"].shape == batch["place"].shape == (3, 2) and batch["pick"].dtype == torch.int64
+    assert batch["rot_bin"].shape == (3,) and batch["rot_bin"].dtype == torch.int64
+    assert ((batch["pick"] >= 0) & (batch["pick"] < 160)).all()
+    assert batch["aug_yaw"].shape == (3,) and batch["aug_shift"].shape == (3, 2)
+
+
+def test_vf_batch_shapes_and_types(synthetic):
+    batch = VfSampler(synthetic, batch_size=2).sample(rng=np.random.default_rng(1))
+    assert batch["next_color"].shape == (2, 160, 160, 3) and batch["next_height"].shape == (2, 160, 160)
+    assert batch["yaw"].dtype == torch.float32 and batch["identity"].dtype == torch.bool
+
+
+def test_unaugmented_samples_are_the_stored_data(synthetic):
+    sampler = GctnSampler(synthetic, augment=False)
+    for _ in range(5):
+        b = sampler.sample(4, np.random.default_rng(_))
+        for k in range(4):
+            ep, step = synthetic[int(b["episode"][k])], int(b["step"][k])
+            assert not ep.random[step]  # GCTN samples skip the random actions
+            assert np.array_equal(b["current_color"][k].numpy(), ep.color[step])
+            assert np.array_equal(b["goal_height"][k].numpy(), ep.height[-1])  # the goal is the last frame
+            assert b["pick"][k].tolist() == world_to_pixel(ep.pick[step, :2]).tolist()
+            assert int(b["rot_bin"][k]) == ep.rotation_bins(36)[step]
+
+
+def test_draw_follows_the_reference(synthetic):
+    rng = np.random.default_rng(0)
+    gctn = GctnSampler(synthetic)
+    ep, step, identity = gctn.draw(20000, rng)
+    tasks = np.array([synthetic[e].task for e in ep])
+    assert abs(np.mean(tasks == "stack-tower") - 0.5) < 0.02  # tasks uniformly, not episodes
+    assert not any(synthetic[e].random[s] for e, s in zip(ep, step, strict=True)) and not identity.any()
+    vf = VfSampler(synthetic)
+    ep, step, identity = vf.draw(20000, rng)
+    assert abs(identity.mean() - 1 / 8) < 0.01
+    assert any(synthetic[e].random[s] for e, s in zip(ep, step, strict=True))  # VF uses random steps too
+    assert len(gctn) == 3 * 3 + 3 and len(vf) == 3 * 5 + 4
+
+
+def test_identity_samples(synthetic):
+    sampler = VfSampler(synthetic, identity_fraction=1.0)
+    b = sampler.sample(3, np.random.default_rng(2))
+    assert b["identity"].all() and torch.equal(b["pick"], b["place"]) and (b["yaw"] == 0).all()
+    assert torch.equal(b["current_color"], b["next_color"]) and torch.equal(
+        b["current_height"], b["next_height"]
+    )
+
+
+def test_same_seed_same_batches_and_dataloader(synthetic):
+    a = VfSampler(synthetic, batch_size=2, seed=5)
+    b = VfSampler(synthetic, batch_size=2, seed=5)
+    ba, bb = next(iter(a)), next(iter(b))
+    assert all(torch.equal(ba[k], bb[k]) for k in ba)
+    loader = DataLoader(a, batch_size=None)
+    assert torch.equal(next(iter(loader))["pick"], ba["pick"])
+    assert sampler_item_is_fixed(a)
+
+
+def sampler_item_is_fixed(sampler) -> bool:
+    one, two = sampler.item(3), sampler.item(3)
+    return all(torch.equal(one[k], two[k]) for k in one) and float(one["aug_yaw"][0]) == 0.0
+
+
+def test_lazy_episodes_sample_like_loaded_ones(tmp_path, synthetic):
+    from tvf.data import read_episode, write_episode
+
+    for i, ep in enumerate(synthetic):
+        write_episode(tmp_path / f"{i}.h5", ep)
+    loaded = [read_episode(tmp_path / f"{i}.h5") for i in range(4)]
+    lazy = [read_episode(tmp_path / f"{i}.h5", lazy=True) for i in range(4)]
+    a = GctnSampler(loaded, seed=3).sample(2, np.random.default_rng(0))
+    b = GctnSampler(lazy, seed=3).sample(2, np.random.default_rng(0))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+# ---------------------------------------------------------------------------------- the transform
+def test_pure_rotation_moves_a_marked_pixel_like_rotate_pixels():
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        p = rng.integers(30, 130, 2)
+        image = torch.zeros(1, 1, 160, 160)
+        image[0, 0, p[0] - 1 : p[0] + 2, p[1] - 1 : p[1] + 2] = 1.0  # a 3x3 mark around p
+        yaw = rng.uniform(-math.pi, math.pi)
+        out = warp(image, Se2(np.array([yaw]), np.zeros((1, 2))))
+        expected = rotate_pixels(p.astype(float), yaw, IMAGE_CENTER)
+        q = transform_pixels(p[None, None], Se2(np.array([yaw]), np.zeros((1, 2))))[0, 0]
+        assert np.abs(q - expected).max() <= 0.5 + 1e-9
+        assert out[0, 0, q[0], q[1]] == 1.0
+        rows, cols = np.nonzero(out[0, 0].numpy())
+        assert np.hypot(rows.mean() - expected[0], cols.mean() - expected[1]) < 0.75  # nearest sampling
+
+
+def test_a_world_yaw_is_the_same_image_turn():
+    """Turning the scene by yaw about the image centre moves world points as rotate_xy does."""
+    from tvf.geometry import pixel_to_world, rotate_xy
+
+    xy = np.array([[0.6, 0.1], [0.3, -0.2]])
+    centre = pixel_to_world(IMAGE_CENTER)
+    yaw = 0.7
+    se2 = Se2(np.array([yaw]), np.zeros((1, 2)))
+    moved = transform_points(world_to_subpixel(xy)[None], se2)[0]
+    assert np.allclose(pixel_to_world(moved), rotate_xy(xy - centre, yaw) + centre)
+
+
+def test_sampled_transforms_keep_key_points_inside():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(5, 155, (200, 2, 2))
+    se2 = sample_se2(points, rng, margin=20)
+    assert inside(transform_points(points, se2)).all() or np.any(se2.yaw == 0)
+    kept = se2.yaw != 0
+    from tvf.data.augment import probe_points
+
+    assert inside(transform_points(probe_points(points, 20), se2))[kept].all()
+    assert 0.8 < np.std(se2.yaw[kept]) / math.radians(60) < 1.2 or kept.sum() < 100
+
+
+# ------------------------------------------------------------------- augmentation on real episodes
+def test_augmented_actions_still_pick_the_block_and_reach_its_pose(real_root):
+    ds = open_dataset(real_root / "train")
+    episodes = ds.load_all()
+    rng = np.random.default_rng(7)
+    errors, wrong_turn_errors = [], []
+    for sampler in (GctnSampler(episodes), VfSampler(episodes, identity_fraction=0.0)):
+        batch = sampler.sample(32, rng)
+        for k in range(32):
+            ep, step = episodes[int(batch["episode"][k])], int(batch["step"][k])
+            phi = float(batch["aug_yaw"][k])
+            se2 = Se2(np.array([phi]), batch["aug_shift"][k : k + 1].numpy().astype(np.float64))
+            pick = batch["pick"][k].numpy()
+            place = batch["place"][k].numpy()
+            # 1. the transformed pick pixel lies on a block in the transformed image
+            assert batch["current_height"][k, pick[0], pick[1]] >= 0.03
+            # 2. the picked block (nearest to the pick) and where it came to rest after the step
+            before, after = ep.blocks[step], ep.blocks[step + 1]
+            block = int(np.argmin(np.linalg.norm(before[:, :2] - ep.pick[step, :2], axis=1)))
+            centre = transform_points(world_to_subpixel(before[block, :2])[None, None], se2)[0, 0]
+            landed = transform_points(world_to_subpixel(after[block, :2])[None, None], se2)[0, 0]
+            delta = float(bin_to_yaw(batch["rot_bin"][k].item(), 36))
+            # the tool turns the block by delta about the pick point (image turn == world yaw)
+            errors.append(np.linalg.norm(place + rotate_pixels(centre - pick, delta, np.zeros(2)) - landed))
+            wrong_turn_errors.append(
+                np.linalg.norm(place + rotate_pixels(centre - pick, -delta, np.zeros(2)) - landed)
+            )
+            # 3. the block's yaw plus the turn reaches its final yaw (both turned by phi), mod 90 degrees
+            err = wrap_symmetric(before[block, 3] + phi + delta - (after[block, 3] + phi), BLOCK_SYMMETRY)
+            assert abs(err) < math.radians(10)
+    assert max(errors) < 2.0, max(errors)  # pixel rounding and where the block really settled
+    assert max(wrong_turn_errors) > 2.0  # the check can tell a sign error apart
