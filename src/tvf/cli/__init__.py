@@ -10,19 +10,28 @@ import sys
 
 import tyro
 
-from tvf.cli.world import OracleCmd, QuickstartCmd, RenderCmd, TasksCmd
+from tvf.cli.data import DataCmd, DemosCmd
+from tvf.cli.train import TrainCmd
+from tvf.cli.world import EvalCmd, EvalVfCmd, OracleCmd, QuickstartCmd, RenderCmd, TasksCmd, VizCmd
 from tvf.errors import TvfError
 
 DESCRIPTION = """tvf: Transporters with Visual Foresight.
 
 Pipeline: `tvf tasks` (what can be built) -> `tvf oracle` / `tvf render` (the simulated world and its
-expert). Run `tvf COMMAND --help` for each command's flags."""
+expert) -> `tvf demos` (datasets) -> `tvf train gctn|vf` (the models) -> `tvf eval` (closed loop).
+Run `tvf COMMAND --help` for each command's flags."""
 
 COMMANDS: dict[str, type] = {
     "tasks": TasksCmd,
     "oracle": OracleCmd,
     "render": RenderCmd,
     "quickstart": QuickstartCmd,
+    "demos": DemosCmd,
+    "data": DataCmd,
+    "train": TrainCmd,
+    "eval": EvalCmd,
+    "eval-vf": EvalVfCmd,
+    "viz": VizCmd,
 }
 
 

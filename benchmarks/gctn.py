@@ -1,0 +1,113 @@
+"""GCTN costs on this CPU: train-step time at batch 1 and 8, greedy action time, planner place maps.
+
+Prints one JSON object. Usage: python benchmarks/gctn.py [--paper] [--presets lite,smoke] [--repeats N]
+[--threads 2] [--nchw]. The ``paper`` preset runs only with --paper (minutes on a CPU).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+
+import torch
+
+from tvf.models.backbone import count_conv_macs, count_parameters, set_channels_last
+from tvf.models.gctn import GCTN
+from tvf.models.presets import ModelPreset, get_preset
+
+
+def best_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
+    """Shortest wall time of ``fn`` over ``repeats`` runs after ``warmup`` runs.
+
+    The minimum, not the median: on a shared CPU other jobs only ever add time.
+    """
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def random_batch(batch: int, generator: torch.Generator, n_rotations: int) -> dict[str, torch.Tensor]:
+    """Random normalised RGB-H states/goals and labels (costs do not depend on the content)."""
+    return {
+        "current": torch.randn(batch, 4, 160, 160, generator=generator),
+        "goal": torch.randn(batch, 4, 160, 160, generator=generator),
+        "pick": torch.randint(0, 160, (batch, 2), generator=generator),
+        "place": torch.randint(0, 160, (batch, 2), generator=generator),
+        "rot": torch.randint(0, n_rotations, (batch,), generator=generator),
+    }
+
+
+def gctn_size(model: GCTN, preset: ModelPreset) -> dict[str, float]:
+    """Parameters and forward GMACs (convolutions only; the correlation is counted separately)."""
+    padded = preset.image_size + preset.crop
+    attention_macs = count_conv_macs(model.attention.fcn, (1, 8, preset.image_size, preset.image_size))
+    transport_macs = 3 * count_conv_macs(model.transport.key, (1, 4, padded, padded))
+    return {
+        "params_attention": count_parameters(model.attention),
+        "params_transport": count_parameters(model.transport),
+        "gmac_attention": attention_macs / 1e9,
+        "gmac_transport_fcns": transport_macs / 1e9,
+    }
+
+
+def train_step_seconds(model: GCTN, batch: dict[str, torch.Tensor], repeats: int) -> float:
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+    def step() -> None:
+        optimizer.zero_grad(set_to_none=True)
+        loss = model.loss(batch["current"], batch["goal"], batch["pick"], batch["place"], batch["rot"])
+        loss["total"].backward()
+        optimizer.step()
+
+    return best_seconds(step, repeats)
+
+
+def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict[str, object]:
+    generator = torch.Generator().manual_seed(0)
+    torch.manual_seed(0)
+    model = set_channels_last(GCTN(preset), channels_last)
+    out: dict[str, object] = {"preset": preset.as_dict(), **gctn_size(model, preset)}
+    for batch_size in (1, 8):
+        batch = random_batch(batch_size, generator, preset.n_rotations)
+        seconds = train_step_seconds(model, batch, repeats)
+        out[f"train_step_s_b{batch_size}"] = seconds
+        out[f"train_samples_per_s_b{batch_size}"] = batch_size / seconds
+    one = random_batch(1, generator, preset.n_rotations)
+    with torch.no_grad():
+        out["act_s_b1"] = best_seconds(lambda: model.act(one["current"], one["goal"]), repeats)
+        goal_features = model.transport.goal_features(one["goal"])
+        for batch_size in (9, 27):
+            many = random_batch(batch_size, generator, preset.n_rotations)
+            out[f"place_map_s_b{batch_size}_shared_goal"] = best_seconds(
+                lambda m=many: model.place_map(m["current"], None, m["pick"], goal_features=goal_features),
+                repeats,
+            )
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
+    parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--nchw", action="store_true", help="contiguous NCHW instead of channels-last")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    names = args.presets.split(",") + (["paper"] if args.paper else [])
+    results = {
+        name: bench_preset(get_preset(name), args.repeats, channels_last=not args.nchw) for name in names
+    }
+    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw}
+    print(json.dumps({"gctn": results, **meta}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,152 @@
+"""Visual-foresight costs on this CPU, and the model time of one TVF-Large decision.
+
+For each preset: train-step time at batch 1 and 8, batched inference images/s at batch 1, 27 and 81
+against 27 single calls, and a TVF-Large decision (K=3, depth 3: GCTN on 1, 3, 9 states and VF on 3, 9,
+27 children, batched per depth, goal features computed once; top-K by the best rotation per pixel
+stands in for k-means, whose cost is negligible).
+
+Prints one JSON object. Usage: python benchmarks/vf.py [--paper] [--presets lite,smoke] [--repeats N]
+[--threads 2] [--nchw].
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+
+import torch
+
+from tvf.models.backbone import count_conv_macs, count_parameters, set_channels_last
+from tvf.models.gctn import GCTN
+from tvf.models.presets import ModelPreset, get_preset
+from tvf.models.vf import ACTION_CHANNELS, VisualForesight
+
+
+def best_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
+    """Shortest wall time of ``fn`` over ``repeats`` runs after ``warmup`` runs.
+
+    The minimum, not the median: on a shared CPU other jobs only ever add time.
+    """
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def random_actions(batch: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    return {
+        "rgbh": torch.randn(batch, 4, 160, 160, generator=generator),
+        "pick": torch.randint(0, 160, (batch, 2), generator=generator),
+        "place": torch.randint(0, 160, (batch, 2), generator=generator),
+        "yaw": torch.rand(batch, generator=generator) * 6.283,
+    }
+
+
+def train_step_seconds(model: VisualForesight, batch: dict[str, torch.Tensor], repeats: int) -> float:
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+    def step() -> None:
+        optimizer.zero_grad(set_to_none=True)
+        model.loss(batch["rgbh"], batch["pick"], batch["place"], batch["yaw"], batch["rgbh"]).backward()
+        optimizer.step()
+
+    return best_seconds(step, repeats)
+
+
+def predict_seconds(model: VisualForesight, batch: dict[str, torch.Tensor], repeats: int) -> float:
+    return best_seconds(
+        lambda: model.predict_rgbh(batch["rgbh"], batch["pick"], batch["place"], batch["yaw"]), repeats
+    )
+
+
+def top_k_places(place_logits: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The k best place pixels (by their best rotation) per state: pixels (B, k, 2), yaws (B, k)."""
+    b, r, h, w = place_logits.shape
+    best, best_bin = place_logits.max(dim=1)
+    index = best.reshape(b, -1).topk(k, dim=1).indices
+    pixels = torch.stack([index // w, index % w], dim=-1)
+    bins = best_bin.reshape(b, -1).gather(1, index)
+    return pixels, bins.float() * (6.283185307179586 / r)
+
+
+def decision_seconds(gctn: GCTN, vf: VisualForesight, repeats: int, k: int = 3, depth: int = 3) -> float:
+    """Model time of one TVF-Large decision (the tree's GCTN and VF calls, batched per depth)."""
+    generator = torch.Generator().manual_seed(1)
+    root = torch.randn(1, 4, 160, 160, generator=generator)
+    goal = torch.randn(1, 4, 160, 160, generator=generator)
+
+    @torch.no_grad()
+    def decide() -> None:
+        goal_features = gctn.transport.goal_features(goal)
+        states = root
+        for _ in range(depth):
+            n = states.shape[0]
+            pick_logits = gctn.pick_logits(states, goal)
+            flat = pick_logits.reshape(n, -1).argmax(dim=1)
+            picks = torch.stack([flat // 160, flat % 160], dim=1)
+            place_logits = gctn.place_map(states, None, picks, goal_features=goal_features)
+            places, yaws = top_k_places(place_logits, k)
+            states = vf.predict_rgbh(
+                states.repeat_interleave(k, dim=0),
+                picks.repeat_interleave(k, dim=0),
+                places.reshape(-1, 2),
+                yaws.reshape(-1),
+            )
+
+    return best_seconds(decide, repeats)
+
+
+def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict[str, object]:
+    generator = torch.Generator().manual_seed(0)
+    torch.manual_seed(0)
+    model = set_channels_last(VisualForesight(preset), channels_last)
+    side = preset.image_size + 2 * preset.vf_pad
+    out: dict[str, object] = {
+        "preset": preset.as_dict(),
+        "params": count_parameters(model),
+        "gmac": count_conv_macs(model.fcn, (1, ACTION_CHANNELS, side, side)) / 1e9,
+    }
+    for batch_size in (1, 8):
+        seconds = train_step_seconds(model, random_actions(batch_size, generator), repeats)
+        out[f"train_step_s_b{batch_size}"] = seconds
+        out[f"train_samples_per_s_b{batch_size}"] = batch_size / seconds
+    for batch_size in (1, 27, 81):
+        seconds = predict_seconds(model, random_actions(batch_size, generator), repeats)
+        out[f"predict_s_b{batch_size}"] = seconds
+        out[f"predict_images_per_s_b{batch_size}"] = batch_size / seconds
+    singles = [random_actions(1, generator) for _ in range(27)]
+    seconds = best_seconds(
+        lambda: [model.predict_rgbh(s["rgbh"], s["pick"], s["place"], s["yaw"]) for s in singles], repeats
+    )
+    out["predict_s_27_single_calls"] = seconds
+    out["predict_images_per_s_27_single_calls"] = 27 / seconds
+    gctn = set_channels_last(GCTN(preset), channels_last)
+    out["tvf_large_decision_s"] = decision_seconds(gctn, model, repeats)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
+    parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--nchw", action="store_true", help="contiguous NCHW instead of channels-last")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    names = args.presets.split(",") + (["paper"] if args.paper else [])
+    results = {
+        name: bench_preset(get_preset(name), args.repeats, channels_last=not args.nchw) for name in names
+    }
+    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw}
+    print(json.dumps({"vf": results, **meta}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,232 @@
+"""Checkpoints: atomic save, validated load (``torch.load(weights_only=True)``), model rebuild.
+
+A checkpoint is a dict of plain data and tensors::
+
+    {"format": "tvf-checkpoint", "version": 1, "kind": "gctn" | "vf", "config": {...},
+     "step": int, "model": state_dict, "optimizer": state_dict | None, "extra": {...}}
+
+``config`` must hold ``{"preset": ModelPreset.as_dict()}`` for :func:`load_model` to rebuild the
+network; anything else in it (and in ``extra``) must be plain Python data (dict, list, str, numbers,
+bool, None) or tensors.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from tvf.errors import TvfError
+from tvf.models.presets import ModelPreset, PresetError
+
+FORMAT = "tvf-checkpoint"
+VERSION = 1
+
+
+class CheckpointError(TvfError):
+    """A checkpoint is missing, unreadable, of another model kind or incompatible with the config."""
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint (``model``/``optimizer`` are state dicts)."""
+
+    path: Path
+    kind: str
+    config: dict[str, Any]
+    step: int
+    model: dict[str, torch.Tensor]
+    optimizer: dict[str, Any] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def model_kind(model: nn.Module) -> str:
+    """The checkpoint kind of a model (its ``checkpoint_kind`` attribute)."""
+    kind = getattr(model, "checkpoint_kind", None)
+    if not isinstance(kind, str):
+        raise TypeError(f"{type(model).__name__} has no checkpoint_kind attribute")
+    return kind
+
+
+_PLAIN = (str, int, float, bool, type(None), torch.Tensor)
+
+
+def _check_plain(value: Any, where: str) -> None:
+    """Refuse data that ``torch.load(weights_only=True)`` could not read back (numpy, objects)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str | int):
+                raise TypeError(f"{where} has a non-string key {key!r}")
+            _check_plain(item, f"{where}[{key!r}]")
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            _check_plain(item, f"{where}[{i}]")
+    elif not isinstance(value, _PLAIN):
+        raise TypeError(f"{where} is a {type(value).__name__}; checkpoints hold plain data and tensors only")
+
+
+def save_checkpoint(
+    path: str | os.PathLike,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer | None = None,
+    step: int = 0,
+    config: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write a checkpoint atomically (temporary file in the same folder, then ``os.replace``).
+
+    ``config`` defaults to ``model.config()``. Returns the path written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if config is None:
+        config = model.config() if hasattr(model, "config") else {}
+    _check_plain(config, "config")
+    _check_plain(extra or {}, "extra")
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "kind": model_kind(model),
+        "config": config,
+        "step": int(step),
+        "model": model.state_dict(),
+        "optimizer": optimizer.state_dict() if optimizer is not None else None,
+        "extra": extra or {},
+    }
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _read(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist; train a model first or pass the right path")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, OSError, ValueError) as e:
+        raise CheckpointError(
+            f"checkpoint {path} is corrupt or not a tvf checkpoint ({type(e).__name__}: {e}); "
+            "delete it and train again, or pass another file"
+        ) from e
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not a tvf checkpoint; pass a file written by tvf training")
+    if payload.get("version") != VERSION:
+        raise CheckpointError(
+            f"checkpoint {path} has format version {payload.get('version')}, this tvf reads {VERSION}; "
+            "retrain with this version"
+        )
+    return payload
+
+
+def _config_differences(found: dict[str, Any], expected: dict[str, Any], prefix: str = "") -> list[str]:
+    diffs = []
+    for key in sorted(set(found) | set(expected)):
+        a, b = found.get(key, "<missing>"), expected.get(key, "<missing>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            diffs += _config_differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            diffs.append(f"{prefix}{key}: checkpoint {a!r} vs expected {b!r}")
+    return diffs
+
+
+def load_checkpoint(
+    path: str | os.PathLike,
+    expected_kind: str,
+    model: nn.Module | None = None,
+    optimizer: torch.optim.Optimizer | None = None,
+    expected_config: dict[str, Any] | None = None,
+) -> Checkpoint:
+    """Read and validate a checkpoint; optionally load it into ``model`` and ``optimizer``.
+
+    Raises :class:`CheckpointError` (one message naming the file and the fix) when the file is missing
+    or corrupt, holds another model kind, its config differs from ``expected_config`` (defaults to
+    ``model.config()`` when a model is given), or its weights do not fit ``model``.
+    """
+    path = Path(path)
+    payload = _read(path)
+    kind = payload.get("kind")
+    if kind != expected_kind:
+        raise CheckpointError(
+            f"checkpoint {path} holds a {kind!r} model, expected {expected_kind!r}; "
+            f"pass a {expected_kind} checkpoint"
+        )
+    config = payload.get("config") or {}
+    if expected_config is None and model is not None and hasattr(model, "config"):
+        expected_config = model.config()
+    if expected_config is not None:
+        diffs = _config_differences(config, expected_config)
+        if diffs:
+            raise CheckpointError(
+                f"checkpoint {path} was trained with another config ({'; '.join(diffs)}); "
+                "use the matching preset/config or retrain"
+            )
+    ckpt = Checkpoint(
+        path=path,
+        kind=kind,
+        config=config,
+        step=int(payload.get("step", 0)),
+        model=payload["model"],
+        optimizer=payload.get("optimizer"),
+        extra=payload.get("extra") or {},
+    )
+    if model is not None:
+        load_weights(model, ckpt)
+    if optimizer is not None and ckpt.optimizer is not None:
+        try:
+            optimizer.load_state_dict(ckpt.optimizer)
+        except (ValueError, KeyError, RuntimeError) as e:
+            raise CheckpointError(
+                f"optimizer state in {path} does not fit this optimizer ({e}); resume with the same optimizer"
+            ) from e
+    return ckpt
+
+
+def load_weights(model: nn.Module, ckpt: Checkpoint) -> None:
+    """Load a checkpoint's weights into ``model``; a shape or key mismatch raises :class:`CheckpointError`."""
+    try:
+        model.load_state_dict(ckpt.model)
+    except RuntimeError as e:
+        details = " ".join(str(e).split())[:300]
+        raise CheckpointError(
+            f"checkpoint {ckpt.path} does not fit this {ckpt.kind} model ({details}); "
+            "use the preset it was trained with or retrain"
+        ) from e
+
+
+def preset_of(ckpt: Checkpoint) -> ModelPreset:
+    """The :class:`ModelPreset` stored in a checkpoint's config."""
+    try:
+        return ModelPreset.from_dict(ckpt.config["preset"])
+    except (KeyError, TypeError, PresetError) as e:
+        raise CheckpointError(
+            f"checkpoint {ckpt.path} has no valid model preset in its config ({e}); retrain with this tvf"
+        ) from e
+
+
+def load_model(path: str | os.PathLike, expected_kind: str) -> tuple[nn.Module, Checkpoint]:
+    """Rebuild a GCTN or VF model from its checkpoint (preset from the config) and load its weights."""
+    from tvf.models.gctn import GCTN
+    from tvf.models.vf import VisualForesight
+
+    builders: dict[str, type[nn.Module]] = {"gctn": GCTN, "vf": VisualForesight}
+    if expected_kind not in builders:
+        raise CheckpointError(f"unknown model kind {expected_kind!r}; choose one of {sorted(builders)}")
+    ckpt = load_checkpoint(path, expected_kind)
+    model = builders[expected_kind](preset_of(ckpt))
+    load_weights(model, ckpt)
+    return model, ckpt

@@ -1,0 +1,96 @@
+"""Model size presets: ``paper`` (reference widths), ``lite`` (2-core CPU), ``smoke`` (tests).
+
+All presets keep 160 x 160 images and 36 rotations; they differ in widths, the transport crop and
+the visual-foresight padding. Measured costs are in docs/models.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from tvf.errors import TvfError
+
+
+class PresetError(TvfError, ValueError):
+    """An unknown preset name or an invalid preset field."""
+
+
+@dataclass(frozen=True)
+class ModelPreset:
+    """Hyper-parameters that fix the shapes of the GCTN and VF networks.
+
+    Attributes:
+        name: preset name.
+        attention_width: width multiplier of the GCTN attention (pick) FCN.
+        transport_width: width multiplier of the three transport (place) FCNs.
+        vf_width: width multiplier of the visual-foresight FCN.
+        image_size: side of the square RGB-H images (pixels).
+        n_rotations: rotation bins of the transport; bin ``i`` is yaw ``i * 2*pi / n_rotations``.
+        crop: side of the transport kernel cut around the pick (pixels, a multiple of 8).
+        transport_channels: feature channels of the key / query / goal maps.
+        correlation: "fft" or "conv" cross-correlation of the transport.
+        vf_window: side of the VF pick / place masks (pixels).
+        vf_pad: zero (= mean value) padding around the VF input, cropped off after the FCN.
+        vf_residual: the VF predicts a change added to the input image instead of the image itself.
+        channels_last: run the convolutions in the channels-last memory format.
+    """
+
+    name: str
+    attention_width: float
+    transport_width: float
+    vf_width: float
+    image_size: int = 160
+    n_rotations: int = 36
+    crop: int = 64
+    transport_channels: int = 3
+    correlation: str = "fft"
+    vf_window: int = 44
+    vf_pad: int = 22
+    vf_residual: bool = False
+    channels_last: bool = True
+
+    def __post_init__(self) -> None:
+        if self.crop % 8 or self.image_size % 8:
+            raise PresetError("crop and image_size must be multiples of 8 (the transport FCN is 8s)")
+        if (self.image_size + 2 * self.vf_pad) % 4:
+            raise PresetError("image_size + 2 * vf_pad must be a multiple of 4 (the VF FCN is 4s)")
+        if self.correlation not in ("fft", "conv"):
+            raise PresetError(f"correlation must be 'fft' or 'conv', not {self.correlation!r}")
+        if self.vf_window % 2:
+            raise PresetError("vf_window must be even")
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON- and ``torch.load(weights_only=True)``-safe)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ModelPreset:
+        """Inverse of :meth:`as_dict`; unknown keys raise :class:`PresetError`."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise PresetError(f"unknown preset fields: {unknown}")
+        return cls(**data)
+
+    def replace(self, **changes: Any) -> ModelPreset:
+        """A copy with some fields changed."""
+        return ModelPreset.from_dict({**self.as_dict(), **changes})
+
+
+PAPER = ModelPreset(name="paper", attention_width=1.0, transport_width=1.0, vf_width=1.0)
+LITE = ModelPreset(
+    name="lite", attention_width=0.125, transport_width=0.125, vf_width=0.25, crop=64, vf_pad=0
+)
+SMOKE = ModelPreset(
+    name="smoke", attention_width=0.0625, transport_width=0.0625, vf_width=0.0625, crop=32, vf_pad=0
+)
+PRESETS: dict[str, ModelPreset] = {p.name: p for p in (PAPER, LITE, SMOKE)}
+
+
+def get_preset(name: str) -> ModelPreset:
+    """Preset by name; unknown names raise :class:`PresetError` listing the choices."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise PresetError(f"unknown model preset {name!r}; choose one of {sorted(PRESETS)}") from None

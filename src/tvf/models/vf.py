@@ -1,0 +1,167 @@
+"""Visual foresight (VF): predict the next RGB-H image after a pick-and-place action.
+
+Action encoding (9 channels, all on the unpadded 160 x 160 grid):
+
+* 0-3: the current normalised RGB-H;
+* 4: pick mask, ones on the ``window`` x ``window`` square centred at the pick pixel
+  (rows ``pick_row - window/2 .. pick_row + window/2 - 1``, likewise columns, as the reference);
+* 5-8: place mask, the same square around the pick cut from the RGB-H image, its content turned by
+  the place yaw change (world yaw, geometry's convention: content motion ``p' = R(yaw)(p - pick) + place``
+  in (col, row)) and pasted centred at the place pixel; zero (= mean value) elsewhere.
+
+The place mask is one :func:`tvf.geometry.warp_images` call (rotate about the pick and translate to the
+place, nearest neighbour) multiplied by the window mask at the place pixel. Content from outside the
+image is zero (mean value), which equals the reference's 22 px zero padding. The FCN input may then be
+zero-padded by ``preset.vf_pad`` (the reference pads 22 px) and its output is cropped back, so the loss
+only sees the real 160 x 160 image.
+
+By default the network predicts the next image directly, as the reference. ``preset.vf_residual``
+switches to next = input RGB-H + FCN(encoding); on a fixed batch of synthetic block moves the residual
+head sat longer on the copy-the-input plateau (L1 pulls every unchanged pixel's change to zero) and
+ended higher (0.068 vs 0.042 after 400 steps; copying scores 0.116), so it is off by default.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from tvf.geometry import se2_output_to_input, warp_images
+from tvf.models.backbone import resnet36_4s
+from tvf.models.images import MAX_HEIGHT, RGBH_CHANNELS, ArrayLike, as_pixels, clamp_rgbh, from_rgbh, to_rgbh
+from tvf.models.presets import ModelPreset
+
+ACTION_CHANNELS = 2 * RGBH_CHANNELS + 1
+HEIGHT_WEIGHT = 5.0
+INFERENCE_CHUNK = 8
+"""Largest batch predicted at once: on the 2-core CPU the time per image rises above ~16 (lite:
+5-6 ms per image up to 16, 11 ms at 27)."""
+
+
+def square_masks(centres: torch.Tensor, window: int, height: int, width: int) -> torch.Tensor:
+    """(B, 1, H, W) float masks, ones on rows ``c_row - window/2 .. c_row + window/2 - 1`` (same for cols)."""
+    half = window // 2
+    rows = torch.arange(height, device=centres.device)
+    cols = torch.arange(width, device=centres.device)
+    in_rows = (rows >= centres[:, :1] - half) & (rows < centres[:, :1] + half)  # (B, H)
+    in_cols = (cols >= centres[:, 1:] - half) & (cols < centres[:, 1:] + half)  # (B, W)
+    return (in_rows[:, None, :, None] & in_cols[:, None, None, :]).to(torch.float32)
+
+
+def encode_action(
+    rgbh: torch.Tensor, pick: torch.Tensor, place: torch.Tensor, yaws: torch.Tensor, window: int = 44
+) -> torch.Tensor:
+    """Normalised RGB-H (B, 4, H, W) + action -> the 9-channel VF input (B, 9, H, W).
+
+    ``pick``/``place`` (B, 2) int64 (row, col); ``yaws`` (B,) place yaw change in radians.
+    """
+    h, w = rgbh.shape[-2:]
+    pick_f = pick.to(torch.float32).cpu()
+    out_to_in = se2_output_to_input(
+        torch.as_tensor(yaws, dtype=torch.float32).cpu(), pick_f, place.to(torch.float32).cpu() - pick_f
+    )
+    moved = warp_images(rgbh, out_to_in, mode="nearest")
+    pick_mask = square_masks(pick, window, h, w).to(rgbh.dtype)
+    place_mask = square_masks(place, window, h, w).to(rgbh.dtype)
+    return torch.cat([rgbh, pick_mask, moved * place_mask], dim=1)
+
+
+def vf_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """L1 on normalised RGB-H, height weighted x5: mean over pixels of (|dR|+|dG|+|dB|+5|dH|) / 4."""
+    weights = torch.tensor([1.0, 1.0, 1.0, HEIGHT_WEIGHT], device=predicted.device, dtype=predicted.dtype)
+    return ((predicted - target).abs() * weights.view(1, 4, 1, 1)).sum(dim=1).mean() / RGBH_CHANNELS
+
+
+class VisualForesight(nn.Module):
+    """ResNet36_4s-like FCN 9 -> 4 channels predicting the next normalised RGB-H image."""
+
+    checkpoint_kind = "vf"
+
+    def __init__(self, preset: ModelPreset, seed: int = 0) -> None:
+        """Build the network; weights are drawn from a generator seeded with ``seed``."""
+        super().__init__()
+        self.preset = preset
+        generator = torch.Generator().manual_seed(seed)
+        self.fcn = resnet36_4s(
+            ACTION_CHANNELS, RGBH_CHANNELS, preset.vf_width, preset.channels_last, generator
+        )
+        self.window = preset.vf_window
+        self.pad = preset.vf_pad
+        self.residual = preset.vf_residual
+
+    def config(self) -> dict:
+        """Everything needed to rebuild this model (stored in checkpoints)."""
+        return {"preset": self.preset.as_dict()}
+
+    def forward(
+        self, rgbh: torch.Tensor, pick_pixels: torch.Tensor, place_pixels: torch.Tensor, yaws: torch.Tensor
+    ) -> torch.Tensor:
+        """Predicted next normalised RGB-H (B, 4, H, W), not clamped."""
+        b, shape = rgbh.shape[0], rgbh.shape[-2:]
+        pick = as_pixels(pick_pixels, b, shape).to(rgbh.device)
+        place = as_pixels(place_pixels, b, shape).to(rgbh.device)
+        yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
+        x = encode_action(rgbh, pick, place, yaws, self.window)
+        p = self.pad
+        if p:
+            x = F.pad(x, (p, p, p, p))
+        y = self.fcn(x)
+        if p:
+            y = y[:, :, p:-p, p:-p]
+        y = y.contiguous()
+        return rgbh + y if self.residual else y
+
+    def loss(
+        self,
+        rgbh: torch.Tensor,
+        pick_pixels: torch.Tensor,
+        place_pixels: torch.Tensor,
+        yaws: torch.Tensor,
+        target: torch.Tensor,
+    ) -> torch.Tensor:
+        """Training loss (:func:`vf_loss`) of the prediction against the next normalised RGB-H."""
+        return vf_loss(self(rgbh, pick_pixels, place_pixels, yaws), target)
+
+    @torch.no_grad()
+    def _predict_chunked(
+        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
+    ) -> torch.Tensor:
+        """Unclamped prediction in chunks of :data:`INFERENCE_CHUNK` (faster than one big batch on CPU)."""
+        b = rgbh.shape[0]
+        pick = as_pixels(pick_pixels, b)
+        place = as_pixels(place_pixels, b)
+        yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
+        step = INFERENCE_CHUNK
+        return torch.cat(
+            [
+                self(rgbh[i : i + step], pick[i : i + step], place[i : i + step], yaws[i : i + step])
+                for i in range(0, b, step)
+            ]
+        )
+
+    @torch.no_grad()
+    def predict_rgbh(
+        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
+    ) -> torch.Tensor:
+        """Inference on normalised RGB-H, clamped to physical ranges (for feeding back to the GCTN)."""
+        return clamp_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
+
+    @torch.no_grad()
+    def predict(
+        self,
+        color: ArrayLike,
+        height: ArrayLike,
+        pick_pixels: ArrayLike,
+        place_pixels: ArrayLike,
+        yaws: ArrayLike,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Physical-unit inference: colour (B, H, W, 3) float in 0..255, height (B, H, W) in 0..0.28 m.
+
+        Inputs: ``color`` (B, H, W, 3) uint8/float 0..255, ``height`` (B, H, W) metres, pixels (B, 2)
+        int (row, col), ``yaws`` (B,) place yaw change in radians (world yaw, geometry's convention).
+        """
+        device = next(self.parameters()).device
+        rgbh = to_rgbh(color, height).to(device)
+        color_out, height_out = from_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
+        return color_out.clamp(0.0, 255.0), height_out.clamp(0.0, MAX_HEIGHT)

@@ -1,0 +1,163 @@
+"""The two training jobs: the GCTN (pick and place) and the visual-foresight model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from tvf.data.dataset import demo_subset, open_dataset
+from tvf.data.format import DataError, Episode
+from tvf.data.samplers import GctnSampler, VfSampler
+from tvf.models.images import to_rgbh
+from tvf.models.presets import get_preset
+from tvf.tasks import resolve_tasks
+from tvf.train.trainer import Task, TrainConfig, TrainError, fingerprint
+
+PICK_TOLERANCE_PX = 6
+"""A predicted pick within this many pixels of the label lies on the same 4 cm block (12.8 px)."""
+PLACE_TOLERANCE_PX = 3
+"""A predicted place within this many pixels (~1 cm, the success tolerance) of the label is right."""
+
+
+def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict[str, Any]]:
+    """The run's demo subset of the train split, the validation episodes and the data fingerprint."""
+    tasks = [t.name for t in resolve_tasks(cfg.tasks)]
+    train = open_dataset(cfg.data, split="train" if _has_splits(cfg.data) else None, tasks=tasks)
+    chosen = demo_subset(train, cfg.demos, cfg.seed, tasks)
+    infos = [info for t in tasks for info in chosen[t]]
+    episodes = train.load_all(infos)
+    val_eps: list[Episode] = []
+    val_root = cfg.val_data or (Path(cfg.data) / "test" if _has_splits(cfg.data) else None)
+    if val_root is not None and Path(val_root).exists():
+        try:
+            val = open_dataset(val_root, split="test" if _has_splits(val_root) else None)
+            val_eps = val.load_all()
+        except DataError as exc:
+            raise TrainError(f"validation data: {exc}") from None
+    data = {
+        "data": str(cfg.data),
+        "tasks": tasks,
+        "demos": cfg.demos,
+        "episodes": [[e.task, e.seed] for e in episodes],
+        "data_fingerprint": fingerprint([[e.task, e.seed, e.n_steps] for e in episodes]),
+    }
+    return episodes, val_eps, data
+
+
+def _has_splits(path: Path | str) -> bool:
+    return (Path(path) / "train").is_dir() or (Path(path) / "test").is_dir()
+
+
+def _fixed_items(sampler, n: int) -> list[dict[str, torch.Tensor]]:
+    """``n`` un-augmented samples spread evenly over the sampler's (episode, step) pairs."""
+    idx = np.unique(np.linspace(0, len(sampler) - 1, num=min(n, len(sampler))).round().astype(int))
+    return [sampler.item(int(i)) for i in idx]
+
+
+def _stack(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    return {k: torch.cat([it[k] for it in items]) for k in items[0]}
+
+
+def _base_config(kind: str, cfg: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
+    return {"kind": kind, "preset": get_preset(cfg.preset).as_dict(), "seed": cfg.seed, "batch": cfg.batch,
+            "lr": cfg.lr, **data}  # fmt: skip
+
+
+def gctn_job(cfg: TrainConfig) -> Task:
+    """Training job for the goal-conditioned Transporter."""
+    from tvf.models.gctn import GCTN
+
+    episodes, val_eps, data = _load_episodes(cfg)
+    model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
+    sampler = GctnSampler(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
+    device = lambda: next(model.parameters()).device  # noqa: E731
+
+    def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        current = to_rgbh(batch["current_color"], batch["current_height"])
+        goal = to_rgbh(batch["goal_color"], batch["goal_height"])
+        losses = model.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
+        return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
+
+    validate = None
+    if val_eps:
+        val_items = _fixed_items(GctnSampler(val_eps, augment=False), cfg.val_samples)
+
+        def validate() -> dict[str, float]:
+            return gctn_metrics(model, val_items, device())
+
+    return Task("gctn", model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
+                _base_config("gctn", cfg, data))  # fmt: skip
+
+
+@torch.no_grad()
+def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
+    """Loss and greedy accuracies on fixed samples: pick on the labelled block, place within ~1 cm
+    with the rotation within one bin modulo the block's quarter-turn symmetry."""
+    out: dict[str, list[float]] = {"loss": [], "pick_acc": [], "place_acc": []}
+    r = model.preset.n_rotations
+    for chunk in range(0, len(items), 8):
+        b = {k: v.to(device) for k, v in _stack(items[chunk : chunk + 8]).items()}
+        current = to_rgbh(b["current_color"], b["current_height"])
+        goal = to_rgbh(b["goal_color"], b["goal_height"])
+        out["loss"].append(float(model.loss(current, goal, b["pick"], b["place"], b["rot_bin"])["total"]))
+        pick, place, rot, _ = model.act(current, goal)
+        # the place is judged at the labelled pick, so the two accuracies are separate
+        place_logits = model.place_map(current, goal, b["pick"])
+        flat = place_logits.flatten(1).argmax(1)
+        h, w = place_logits.shape[-2:]
+        place_at_label = torch.stack([(flat % (h * w)) // w, flat % w], 1)
+        rot_at_label = flat // (h * w)
+        out["pick_acc"] += ((pick - b["pick"]).abs().max(1).values <= PICK_TOLERANCE_PX).float().tolist()
+        quarter = r // 4
+        drot = (rot_at_label - b["rot_bin"]) % quarter
+        rot_ok = torch.minimum(drot, quarter - drot) <= 1
+        close = (place_at_label - b["place"]).abs().max(1).values <= PLACE_TOLERANCE_PX
+        out["place_acc"] += (close & rot_ok).float().tolist()
+    return {k: float(np.mean(v)) for k, v in out.items()}
+
+
+def vf_job(cfg: TrainConfig) -> Task:
+    """Training job for the visual-foresight model."""
+    from tvf.models.vf import VisualForesight
+
+    episodes, val_eps, data = _load_episodes(cfg)
+    model = VisualForesight(get_preset(cfg.preset), seed=cfg.seed)
+    sampler = VfSampler(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
+    device = lambda: next(model.parameters()).device  # noqa: E731
+
+    def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        current = to_rgbh(batch["current_color"], batch["current_height"])
+        target = to_rgbh(batch["next_color"], batch["next_height"])
+        value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target)
+        return value, {"loss": float(value.detach())}
+
+    validate = None
+    if val_eps:
+        val_items = _fixed_items(VfSampler(val_eps, augment=False, identity_fraction=0.0), cfg.val_samples)
+
+        def validate() -> dict[str, float]:
+            return vf_metrics(model, val_items, device())
+
+    return Task("vf", model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
+                _base_config("vf", cfg, data))  # fmt: skip
+
+
+@torch.no_grad()
+def vf_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
+    """Validation loss and physical errors: colour MAE in [0, 1] and height MAE in mm."""
+    from tvf.models.images import from_rgbh
+
+    losses, color_err, height_err = [], [], []
+    for chunk in range(0, len(items), 8):
+        b = {k: v.to(device) for k, v in _stack(items[chunk : chunk + 8]).items()}
+        current = to_rgbh(b["current_color"], b["current_height"])
+        target = to_rgbh(b["next_color"], b["next_height"])
+        losses.append(float(model.loss(current, b["pick"], b["place"], b["yaw"], target)))
+        color, height = from_rgbh(model.predict_rgbh(current, b["pick"], b["place"], b["yaw"]))
+        color_err.append(float((color - b["next_color"]).abs().mean() / 255.0))
+        height_err.append(float((height - b["next_height"]).abs().mean() * 1000.0))
+    return {"loss": float(np.mean(losses)), "color_mae": float(np.mean(color_err)),
+            "height_mae_mm": float(np.mean(height_err))}  # fmt: skip

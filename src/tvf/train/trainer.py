@@ -1,0 +1,234 @@
+"""One training loop for both learned models, with a run directory that can be resumed.
+
+A run directory holds::
+
+    RUN/config.json              the resolved configuration, the model preset and the data fingerprint
+    RUN/metrics.jsonl            one JSON object per logged step ({"step", "split": "train"|"val", ...})
+    RUN/tb/                      TensorBoard events (the same numbers)
+    RUN/checkpoints/step_N.pt    checkpoints (tvf.models.checkpoint format), written atomically
+    RUN/checkpoints/last.pt      the newest one; `--resume` continues from it
+
+Every batch draws its randomness from ``numpy.random.default_rng([seed, step])``, so a resumed run
+sees exactly the batches an uninterrupted run would have seen.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from tvf import __version__
+from tvf.errors import TvfError
+
+
+class TrainError(TvfError):
+    """A training run that cannot start or resume (bad data, mismatched run directory)."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Flags shared by `tvf train gctn` and `tvf train vf`."""
+
+    data: Path
+    """Dataset root (with train/ and test/) or a train split folder, made by `tvf demos`."""
+    out: Path
+    """Run directory (created; holds config.json, metrics.jsonl, tb/, checkpoints/)."""
+    demos: int = 10
+    """Demonstrations per task drawn for this run (the subset depends on --seed)."""
+    preset: str = "lite"
+    """Model size: paper | lite | smoke."""
+    steps: int = 2000
+    """Optimiser steps in total (a resumed run continues up to this number)."""
+    batch: int = 8
+    lr: float = 1e-4
+    seed: int = 0
+    """Run seed: demo subset, weight initialisation and every batch's augmentation."""
+    tasks: str = "train"
+    """Tasks to train on: train | unseen | all | NAME[,NAME...]."""
+    val_data: Path | None = None
+    """Test split for validation; default: the `test` folder beside the train split, if any."""
+    val_every: int = 250
+    val_samples: int = 48
+    checkpoint_every: int = 250
+    log_every: int = 25
+    resume: bool = False
+    """Continue from RUN/checkpoints/last.pt (the config must match)."""
+    device: str = "auto"
+    """auto | cpu | cuda."""
+    threads: int = 0
+    """Torch CPU threads (0: torch's default)."""
+    progress: bool = True
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise TrainError("--device cuda was asked for but no CUDA device is available; use --device cpu")
+    if name not in ("cpu", "cuda"):
+        raise TrainError(f"unknown device {name!r}; choose auto, cpu or cuda")
+    return torch.device(name)
+
+
+def fingerprint(items: list[Any]) -> str:
+    """A short stable hash of JSON-able items (the data a run was trained on)."""
+    return hashlib.sha1(json.dumps(items, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class RunDir:
+    """Files of one training run."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.checkpoints = self.root / "checkpoints"
+        self.config_path = self.root / "config.json"
+        self.metrics_path = self.root / "metrics.jsonl"
+
+    @property
+    def last(self) -> Path:
+        return self.checkpoints / "last.pt"
+
+    def prepare(self, config: dict[str, Any], resume: bool) -> None:
+        """Create the run directory, or check that a resumed one was made with the same config."""
+        if self.config_path.exists():
+            old = json.loads(self.config_path.read_text())
+            if not resume:
+                raise TrainError(
+                    f"{self.root} already holds a run; pass --resume to continue it or choose another --out"
+                )
+            keys = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr")
+            changed = [k for k in keys if old.get(k) != config.get(k)]
+            if changed:
+                raise TrainError(
+                    f"{self.root} was made with different {', '.join(changed)}; resume with the same flags"
+                )
+        elif resume and self.last.exists():
+            raise TrainError(f"{self.root} has checkpoints but no config.json; it is not a tvf run")
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = self.config_path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(config, indent=2, default=str))
+        tmp.replace(self.config_path)
+
+    def log(self, record: dict[str, Any]) -> None:
+        with self.metrics_path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def truncate_metrics(self, step: int) -> None:
+        """Drop records past ``step`` (logged after the checkpoint a resumed run restarts from)."""
+        if not self.metrics_path.exists():
+            return
+        keep = [
+            ln for ln in self.metrics_path.read_text().splitlines() if ln and json.loads(ln)["step"] <= step
+        ]
+        self.metrics_path.write_text("".join(ln + "\n" for ln in keep))
+
+
+@dataclass
+class Task:
+    """What differs between the models: how to build them, a loss per batch and validation."""
+
+    kind: str
+    model: torch.nn.Module
+    train_batch: Callable[[np.random.Generator], dict[str, torch.Tensor]]
+    """Draw one augmented batch (tensors on the CPU)."""
+    loss: Callable[[dict[str, torch.Tensor]], tuple[torch.Tensor, dict[str, float]]]
+    validate: Callable[[], dict[str, float]] | None
+    config: dict[str, Any]
+
+
+def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in batch.items()}
+
+
+def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
+    """Run (or resume) training; returns the last validation metrics."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from tvf.models.checkpoint import load_checkpoint, save_checkpoint
+
+    if cfg.steps < 1 or cfg.batch < 1:
+        raise TrainError("--steps and --batch must be at least 1")
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    device = pick_device(cfg.device)
+    run = RunDir(cfg.out)
+    config = {**job.config, "train": asdict(cfg), "version": __version__, "device": str(device)}
+    run.prepare(config, cfg.resume)
+    model = job.model.to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    start = 0
+    if cfg.resume and run.last.exists():
+        ckpt = load_checkpoint(run.last, job.kind, expected_config=model.config())
+        model.load_state_dict(ckpt.model)
+        if ckpt.optimizer is not None:
+            optimizer.load_state_dict(ckpt.optimizer)
+        start = ckpt.step
+        run.truncate_metrics(start)
+    if start >= cfg.steps:
+        print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
+        return {}
+    writer = SummaryWriter(str(run.root / "tb"), purge_step=start if start else None)
+    amp = device.type == "cuda"
+    val: dict[str, float] = {}
+    bar = tqdm(
+        total=cfg.steps, initial=start, desc=f"train {job.kind}", unit="step", disable=not cfg.progress
+    )
+    window: list[dict[str, float]] = []
+    t_last = time.perf_counter()
+
+    def checkpoint(step: int) -> None:
+        path = save_checkpoint(
+            run.checkpoints / f"step_{step:06d}.pt", model, optimizer, step, model.config(),
+            {"data_fingerprint": job.config.get("data_fingerprint"), "val": val},
+        )  # fmt: skip
+        tmp = run.last.with_suffix(".pt.tmp")
+        shutil.copyfile(path, tmp)
+        tmp.replace(run.last)
+
+    try:
+        for step in range(start + 1, cfg.steps + 1):
+            model.train()
+            batch = _to(job.train_batch(np.random.default_rng([cfg.seed, step])), device)
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+                loss, metrics = job.loss(batch)
+            if not torch.isfinite(loss):
+                raise TrainError(
+                    f"the loss became {loss.item()} at step {step}; lower --lr or check the data"
+                )
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            window.append(metrics)
+            bar.update()
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                now = time.perf_counter()
+                means = {k: float(np.mean([m[k] for m in window])) for k in window[0]}
+                means["steps_per_s"] = len(window) / max(now - t_last, 1e-9)
+                t_last, window = now, []
+                run.log({"step": step, "split": "train", **means})
+                for k, v in means.items():
+                    writer.add_scalar(f"train/{k}", v, step)
+                bar.set_postfix(loss=f"{means['loss']:.4f}")
+            if job.validate is not None and (step % cfg.val_every == 0 or step == cfg.steps):
+                model.eval()
+                val = job.validate()
+                run.log({"step": step, "split": "val", **val})
+                for k, v in val.items():
+                    writer.add_scalar(f"val/{k}", v, step)
+                t_last = time.perf_counter()  # steps_per_s counts training only
+            if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+                checkpoint(step)
+    finally:
+        bar.close()
+        writer.close()
+    return val

@@ -1,0 +1,123 @@
+"""Training runs: run directory, checkpoints, exact resume, clear errors (smoke preset, synthetic data)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from tvf.data.format import Episode, episode_name, write_episode
+from tvf.geometry import WORKSPACE
+from tvf.models.checkpoint import CheckpointError, load_checkpoint
+from tvf.train.jobs import gctn_job, vf_job
+from tvf.train.trainer import TrainConfig, TrainError, train
+
+TASKS = ("stack-stair", "put-t")
+
+
+def synthetic_episode(task: str, seed: int, split: str, steps: int = 3) -> Episode:
+    rng = np.random.default_rng(seed)
+    h, w = WORKSPACE.shape
+    xy = np.stack([rng.uniform(0.35, 0.65, steps), rng.uniform(-0.15, 0.15, steps)], 1)
+    pick = np.concatenate([xy, np.full((steps, 1), 0.04), np.zeros((steps, 1))], 1)
+    place = np.concatenate([xy[::-1], np.full((steps, 1), 0.045), rng.uniform(-0.7, 0.7, (steps, 1))], 1)
+    random = np.zeros(steps, bool)
+    if split == "train":
+        random[0] = True
+    return Episode(
+        task=task, seed=seed, split=split,
+        color=rng.integers(0, 256, (steps + 1, h, w, 3), dtype=np.uint8),
+        height=rng.uniform(0, 0.1, (steps + 1, h, w)).astype(np.float32),
+        pick=pick.astype(np.float32), place=place.astype(np.float32), random=random,
+        progress=np.linspace(0, 1, steps + 1).astype(np.float32),
+        blocks=np.zeros((steps + 1, 3, 4), np.float32), targets=np.zeros((3, 4), np.float32),
+        attrs={"n_blocks": 3, "primitives": ["ok"] * steps},
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("demos")
+    for split, seeds in (("train", (0, 2)), ("test", (1,))):
+        for task in TASKS:
+            for seed in seeds:
+                write_episode(root / split / task / episode_name(seed), synthetic_episode(task, seed, split))
+    return root
+
+
+def config(data_root, out, **kw) -> TrainConfig:
+    base = TrainConfig(
+        data=data_root, out=out, demos=2, preset="smoke", steps=4, batch=2, tasks=",".join(TASKS),
+        val_every=4, val_samples=4, checkpoint_every=2, log_every=2, progress=False,
+    )  # fmt: skip
+    return replace(base, **kw)
+
+
+def test_gctn_run_directory_and_metrics(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "run")
+    val = train(cfg, gctn_job(cfg))
+    run = tmp_path / "run"
+    assert {"loss", "pick_acc", "place_acc"} <= set(val)
+    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if r["split"] == "train"] == [2, 4]
+    assert {r["split"] for r in records} == {"train", "val"}
+    conf = json.loads((run / "config.json").read_text())
+    assert (
+        conf["kind"] == "gctn" and conf["preset"]["name"] == "smoke" and len(conf["data_fingerprint"]) == 16
+    )
+    ckpt = load_checkpoint(run / "checkpoints" / "last.pt", "gctn")
+    assert ckpt.step == 4 and (run / "checkpoints" / "step_000002.pt").exists()
+    assert any((run / "tb").iterdir())
+
+
+def test_resumed_run_equals_uninterrupted_run(data_root, tmp_path):
+    full = config(data_root, tmp_path / "full")
+    train(full, gctn_job(full))
+    part = config(data_root, tmp_path / "part", steps=2)
+    train(part, gctn_job(part))
+    resumed = replace(part, steps=4, resume=True)
+    train(resumed, gctn_job(resumed))
+    a = load_checkpoint(tmp_path / "full" / "checkpoints" / "last.pt", "gctn").model
+    b = load_checkpoint(tmp_path / "part" / "checkpoints" / "last.pt", "gctn").model
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_existing_run_needs_resume_and_matching_flags(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "run", steps=2)
+    train(cfg, gctn_job(cfg))
+    with pytest.raises(TrainError, match="--resume"):
+        train(cfg, gctn_job(cfg))
+    other = replace(cfg, resume=True, preset="lite")
+    with pytest.raises(TrainError, match="different preset"):
+        train(other, gctn_job(other))
+
+
+def test_vf_trains_and_checkpoint_kind_is_checked(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "vf")
+    val = train(cfg, vf_job(cfg))
+    assert {"loss", "color_mae", "height_mae_mm"} <= set(val)
+    with pytest.raises(CheckpointError, match="expected 'gctn'"):
+        load_checkpoint(tmp_path / "vf" / "checkpoints" / "last.pt", "gctn")
+
+
+def test_too_few_demos_is_a_clear_error(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "run", demos=5)
+    with pytest.raises(Exception, match="5 demos requested"):
+        gctn_job(cfg)
+
+
+def test_smoke_gctn_trains_then_evaluates_end_to_end(data_root, tmp_path):
+    from tvf.evaluate.closed_loop import PolicySpec, evaluate
+
+    cfg = config(data_root, tmp_path / "run", steps=2)
+    train(cfg, gctn_job(cfg))
+    summary = evaluate(
+        PolicySpec("gctn", gctn=str(tmp_path / "run")), ["stack-stair"], 1, 1, 1, tmp_path / "eval"
+    )
+    assert summary["average"]["episodes"] == 1
+    episode = json.loads((tmp_path / "eval" / "episodes.jsonl").read_text().splitlines()[0])
+    assert episode["steps"] == 3 and len(episode["actions"]) == 3  # the horizon of stack-stair
+    assert (tmp_path / "eval" / "summary.md").exists()
