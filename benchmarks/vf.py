@@ -11,32 +11,13 @@ Prints one JSON object. Usage: python benchmarks/vf.py [--paper] [--presets lite
 
 from __future__ import annotations
 
-import argparse
-import json
-import time
-from collections.abc import Callable
-
 import torch
 
+from common import best_seconds, preset_benchmark_main
 from tvf.models.backbone import count_conv_macs, count_parameters, set_channels_last
 from tvf.models.gctn import GCTN
-from tvf.models.presets import ModelPreset, get_preset
+from tvf.models.presets import ModelPreset
 from tvf.models.vf import ACTION_CHANNELS, VisualForesight
-
-
-def best_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
-    """Shortest wall time of ``fn`` over ``repeats`` runs after ``warmup`` runs.
-
-    The minimum, not the median: on a shared CPU other jobs only ever add time.
-    """
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def random_actions(batch: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
@@ -132,20 +113,7 @@ def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
-    parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--nchw", action="store_true", help="contiguous NCHW instead of channels-last")
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    names = args.presets.split(",") + (["paper"] if args.paper else [])
-    results = {
-        name: bench_preset(get_preset(name), args.repeats, channels_last=not args.nchw) for name in names
-    }
-    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw}
-    print(json.dumps({"vf": results, **meta}, indent=1))
+    preset_benchmark_main("vf", bench_preset, __doc__)
 
 
 if __name__ == "__main__":

@@ -66,14 +66,26 @@ def _base_config(kind: str, cfg: TrainConfig, data: dict[str, Any]) -> dict[str,
             "lr": cfg.lr, **data}  # fmt: skip
 
 
+def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_kwargs) -> Task:
+    """A job from a model, its sampler class, a batch loss and a validation metric function."""
+    episodes, val_eps, data = _load_episodes(cfg)
+    sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
+    validate = None
+    if val_eps:
+        val_items = _fixed_items(sampler_cls(val_eps, augment=False, **val_kwargs), cfg.val_samples)
+
+        def validate() -> dict[str, float]:
+            return metrics(model, val_items, next(model.parameters()).device)
+
+    return Task(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
+                _base_config(kind, cfg, data))  # fmt: skip
+
+
 def gctn_job(cfg: TrainConfig) -> Task:
     """Training job for the goal-conditioned Transporter."""
     from tvf.models.gctn import GCTN
 
-    episodes, val_eps, data = _load_episodes(cfg)
     model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
-    sampler = GctnSampler(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
-    device = lambda: next(model.parameters()).device  # noqa: E731
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])
@@ -81,15 +93,7 @@ def gctn_job(cfg: TrainConfig) -> Task:
         losses = model.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    validate = None
-    if val_eps:
-        val_items = _fixed_items(GctnSampler(val_eps, augment=False), cfg.val_samples)
-
-        def validate() -> dict[str, float]:
-            return gctn_metrics(model, val_items, device())
-
-    return Task("gctn", model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
-                _base_config("gctn", cfg, data))  # fmt: skip
+    return _job("gctn", cfg, model, GctnSampler, loss, gctn_metrics)
 
 
 @torch.no_grad()
@@ -120,13 +124,10 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
 
 
 def vf_job(cfg: TrainConfig) -> Task:
-    """Training job for the visual-foresight model."""
+    """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
     from tvf.models.vf import VisualForesight
 
-    episodes, val_eps, data = _load_episodes(cfg)
     model = VisualForesight(get_preset(cfg.preset), seed=cfg.seed)
-    sampler = VfSampler(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
-    device = lambda: next(model.parameters()).device  # noqa: E731
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])
@@ -134,15 +135,7 @@ def vf_job(cfg: TrainConfig) -> Task:
         value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target)
         return value, {"loss": float(value.detach())}
 
-    validate = None
-    if val_eps:
-        val_items = _fixed_items(VfSampler(val_eps, augment=False, identity_fraction=0.0), cfg.val_samples)
-
-        def validate() -> dict[str, float]:
-            return vf_metrics(model, val_items, device())
-
-    return Task("vf", model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
-                _base_config("vf", cfg, data))  # fmt: skip
+    return _job("vf", cfg, model, VfSampler, loss, vf_metrics, identity_fraction=0.0)
 
 
 @torch.no_grad()

@@ -1,0 +1,45 @@
+"""Shared scaffolding of the model benchmarks: best-of-N timing and the per-preset command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+
+import torch
+
+from tvf.models.presets import ModelPreset, get_preset
+
+
+def best_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
+    """The fastest of ``repeats`` timed calls of ``fn`` after ``warmup`` untimed ones.
+
+    The minimum, not the median: on a shared CPU other jobs only ever add time.
+    """
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def preset_benchmark_main(
+    label: str, bench_preset: Callable[[ModelPreset, int, bool], dict[str, object]], doc: str | None
+) -> None:
+    """Parse the common flags, run ``bench_preset`` for each preset and print one JSON object."""
+    parser = argparse.ArgumentParser(description=doc)
+    parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
+    parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--nchw", action="store_true", help="contiguous NCHW instead of channels-last")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    names = args.presets.split(",") + (["paper"] if args.paper else [])
+    results = {name: bench_preset(get_preset(name), args.repeats, not args.nchw) for name in names}
+    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw}
+    print(json.dumps({label: results, **meta}, indent=1))
