@@ -77,6 +77,8 @@ class OracleCmd:
     """Also write per-episode results and the per-task table to this JSON file."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md)."""
+    gui: bool = False
+    """Watch in a PyBullet window (needs a display; one worker)."""
 
     def run(self) -> None:
         from tvf.evaluate.runner import oracle_episode, run_jobs
@@ -86,8 +88,11 @@ class OracleCmd:
         use_task_file(self.task_file)
         if self.episodes < 1 or self.workers < 1:
             raise TvfError("--episodes and --workers must be at least 1")
+        if self.gui and self.workers != 1:
+            raise TvfError("--gui shows one window: use it with --workers 1")
         tasks = resolve_tasks(self.task)
-        jobs = [(t.name, self.seed + i, self.step_slack) for t in tasks for i in range(self.episodes)]
+        seeds = [self.seed + i for i in range(self.episodes)]
+        jobs = [(t.name, seed, self.step_slack, self.gui) for t in tasks for seed in seeds]
         results = list(run_jobs(oracle_episode, jobs, self.workers, "oracle", self.task_file))
         per_task: dict[str, list] = defaultdict(list)
         for r in results:

@@ -47,18 +47,18 @@ def init_worker(task_file: str | None = None, threads: int = 1) -> None:
         pass
 
 
-def cached_env(task: str):
-    """This process's environment for ``task`` (created on first use)."""
+def cached_env(task: str, gui: bool = False):
+    """This process's environment for ``task`` (created on first use; ``gui`` opens a PyBullet window)."""
     from tvf.sim.env import TvfEnv
 
     if task not in _ENVS:
-        _ENVS[task] = TvfEnv(task)
+        _ENVS[task] = TvfEnv(task, gui=gui)
     return _ENVS[task]
 
 
-def oracle_episode(task: str, seed: int, step_slack: int = 0) -> EpisodeResult:
+def oracle_episode(task: str, seed: int, step_slack: int = 0, gui: bool = False) -> EpisodeResult:
     """Run the scripted expert on ``task`` from ``seed`` until success or the step horizon."""
-    env = cached_env(task)
+    env = cached_env(task, gui)
     env.reset(seed=seed)
     result = EpisodeResult(task, seed, False, env.progress().fraction, 0)
     for _ in range(env.task.horizon + step_slack):
