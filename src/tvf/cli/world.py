@@ -199,9 +199,11 @@ class EvalCmd:
     seed_start: int = 1
     """Episode i uses seed seed_start + 2i (odd seeds: the test split's)."""
     workers: int = 1
+    """Parallel processes (one simulator and one model copy each)."""
     step_slack: int = 0
     """Extra steps beyond one per block (0 = the paper's protocol)."""
     task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md)."""
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import PolicySpec, evaluate, make_policy, summary_markdown
@@ -229,8 +231,11 @@ class VizGctn:
     gctn: Path
     """GCTN run directory (uses checkpoints/last.pt) or checkpoint file."""
     task: str
+    """The task whose scene is drawn (see `tvf tasks`)."""
     out: Path
+    """Output directory (gctn_decision.png, gctn_maps.npz)."""
     seed: int = 1
+    """Scene seed (odd seeds are the test split's)."""
 
     def run(self) -> None:
         from tvf.tasks import get_task
