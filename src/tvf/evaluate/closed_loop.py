@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from tvf.errors import TvfError
-from tvf.evaluate.runner import EpisodeResult, cached_env, run_jobs
+from tvf.evaluate.runner import EpisodeResult, cached_env, run_episode, run_jobs
 from tvf.viz.images import atomic_write_bytes
 
 METHODS = ("oracle", "gctn")
@@ -44,21 +44,8 @@ def policy_episode(task: str, seed: int, spec: PolicySpec) -> EpisodeResult:
         _POLICIES[spec] = make_policy(spec)
     policy = _POLICIES[spec]
     env = cached_env(task)
-    obs, info = env.reset(seed=seed)
-    goal = info["goal"]
-    result = EpisodeResult(task, seed, False, info["progress"], 0)
-    for _ in range(env.task.horizon + spec.step_slack):
-        action = policy.act(env, obs, goal)
-        if action is None:
-            result.primitives.append("no_action")
-            break
-        obs, _, terminated, _, info = env.step(action)
-        result.actions.append(np.asarray(action).tolist())
-        result.primitives.append(info["primitive"])
-        result.steps, result.success, result.progress = info["steps"], info["success"], info["progress"]
-        if terminated:
-            break
-    return result
+    act = lambda obs, goal: policy.act(env, obs, goal)  # noqa: E731
+    return run_episode(env, seed, act, env.task.horizon + spec.step_slack)
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:

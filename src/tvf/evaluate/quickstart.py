@@ -5,28 +5,18 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tvf.evaluate.runner import EpisodeResult, cached_env, run_jobs
+from tvf.evaluate.runner import EpisodeResult, cached_env, run_episode, run_jobs
 from tvf.viz.images import atomic_write_bytes, observation_panel, save_gif, save_png, side_by_side
 
 
 def gallery_episode(task: str, seed: int, out: str) -> EpisodeResult:
     """Run the expert once and write ``out/TASK/{episode.gif, initial.png, goal.png, final.png}``."""
     env = cached_env(task)
-    obs, info = env.reset(seed=seed)
-    goal = observation_panel(info["goal"]["color"], info["goal"]["height"])
-    frames = [side_by_side(observation_panel(obs["color"], obs["height"]), goal)]
-    result = EpisodeResult(task, seed, False, info["progress"], 0)
-    for _ in range(env.task.horizon):
-        action = env.oracle_action()
-        if action is None:
-            break
-        obs, _, terminated, _, info = env.step(action)
-        frames.append(side_by_side(observation_panel(obs["color"], obs["height"]), goal))
-        result.actions.append(action.tolist())
-        result.primitives.append(info["primitive"])
-        result.steps, result.success, result.progress = info["steps"], info["success"], info["progress"]
-        if terminated:
-            break
+    seen: list[tuple[dict, dict]] = []
+    result = run_episode(env, seed, lambda obs, goal: env.oracle_action(), env.task.horizon,
+                         stuck="oracle_stuck", on_obs=lambda obs, goal: seen.append((obs, goal)))  # fmt: skip
+    goal = observation_panel(seen[0][1]["color"], seen[0][1]["height"])
+    frames = [side_by_side(observation_panel(o["color"], o["height"]), goal) for o, _ in seen]
     folder = Path(out) / task
     save_gif(folder / "episode.gif", frames, fps=1.5)
     save_png(folder / "initial.png", frames[0])

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 _ENVS: dict = {}
@@ -56,23 +57,40 @@ def cached_env(task: str, gui: bool = False):
     return _ENVS[task]
 
 
-def oracle_episode(task: str, seed: int, step_slack: int = 0, gui: bool = False) -> EpisodeResult:
-    """Run the scripted expert on ``task`` from ``seed`` until success or the step horizon."""
-    env = cached_env(task, gui)
-    env.reset(seed=seed)
-    result = EpisodeResult(task, seed, False, env.progress().fraction, 0)
-    for _ in range(env.task.horizon + step_slack):
-        action = env.oracle_action()
+def run_episode(
+    env, seed: int, act: Callable, max_steps: int, stuck: str = "no_action", on_obs: Callable | None = None
+) -> EpisodeResult:
+    """Reset ``env`` to ``seed`` and step ``act(obs, goal) -> action | None`` until success or ``max_steps``.
+
+    ``on_obs(obs, goal)`` sees every observation (the first one included); an action of None ends the episode
+    and is recorded as ``stuck``.
+    """
+    obs, info = env.reset(seed=seed)
+    goal = info["goal"]
+    result = EpisodeResult(env.task.name, seed, False, info["progress"], 0)
+    if on_obs is not None:
+        on_obs(obs, goal)
+    for _ in range(max_steps):
+        action = act(obs, goal)
         if action is None:
-            result.primitives.append("oracle_stuck")
+            result.primitives.append(stuck)
             break
-        _, _, terminated, _, info = env.step(action)
-        result.actions.append(action.tolist())
+        obs, _, terminated, _, info = env.step(action)
+        if on_obs is not None:
+            on_obs(obs, goal)
+        result.actions.append(np.asarray(action).tolist())
         result.primitives.append(info["primitive"])
         result.steps, result.success, result.progress = info["steps"], info["success"], info["progress"]
         if terminated:
             break
     return result
+
+
+def oracle_episode(task: str, seed: int, step_slack: int = 0, gui: bool = False) -> EpisodeResult:
+    """Run the scripted expert on ``task`` from ``seed`` until success or the step horizon."""
+    env = cached_env(task, gui)
+    return run_episode(env, seed, lambda obs, goal: env.oracle_action(), env.task.horizon + step_slack,
+                       stuck="oracle_stuck")  # fmt: skip
 
 
 def run_jobs(
