@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         command.run()
     except TvfError as exc:
-        print(f"tvf: error: {exc}", file=sys.stderr)
+        print(f"tvf: error: {' '.join(str(exc).split())}", file=sys.stderr)  # always one line
         raise SystemExit(2) from None
     except KeyboardInterrupt:
         print("tvf: interrupted; finished work is kept, re-run the same command to resume", file=sys.stderr)

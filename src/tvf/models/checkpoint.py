@@ -120,8 +120,8 @@ def _read(path: Path) -> dict[str, Any]:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, OSError, ValueError) as e:
         raise CheckpointError(
-            f"checkpoint {path} is corrupt or not a tvf checkpoint ({type(e).__name__}: {e}); "
-            "delete it and train again, or pass another file"
+            f"checkpoint {path} is corrupt or not a tvf checkpoint (torch.load: {type(e).__name__}); "
+            "pass another file or train again"
         ) from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a tvf checkpoint; pass a file written by tvf training")
