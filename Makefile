@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-all lint quickstart bench clean
+.PHONY: venv test test-all lint quickstart reproduce bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +30,14 @@ lint: $(STAMP)
 quickstart: $(STAMP)
 	$(VENV)/bin/tvf quickstart --out out/quickstart
 
+# Re-train the shipped lite weights from scratch (data, GCTN, VF, all evaluations, report; ~2.5 h on
+# 2 CPU cores; resumable) and copy them into src/tvf/weights.
+reproduce: $(STAMP)
+	$(VENV)/bin/tvf experiment --demos 10 --preset lite --out runs/reproduce-lite-10 --ship
+
 bench: $(STAMP)
 	$(PY) benchmarks/sim.py
+	$(PY) benchmarks/planner.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

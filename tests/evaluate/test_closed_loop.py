@@ -28,8 +28,11 @@ def test_oracle_evaluation_writes_outputs_and_resumes(tmp_path, capsys):
         evaluate(PolicySpec("oracle", step_slack=2), ["stack-stair"], 1, 1, 1, tmp_path)
 
 
-def test_gctn_needs_a_checkpoint(tmp_path):
-    with pytest.raises(TvfError, match="--gctn"):
+def test_gctn_needs_a_checkpoint(tmp_path, monkeypatch):
+    import tvf.weights
+
+    monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", tmp_path)  # no shipped weights
+    with pytest.raises(TvfError, match="--gctn RUN"):
         evaluate(PolicySpec("gctn"), ["stack-stair"], 1, 1, 1, tmp_path)
     with pytest.raises(TvfError, match="does not exist"):
         evaluate(PolicySpec("gctn", gctn=str(tmp_path / "nope")), ["stack-stair"], 1, 1, 1, tmp_path / "b")

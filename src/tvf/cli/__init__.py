@@ -11,6 +11,7 @@ import sys
 import tyro
 
 from tvf.cli.data import DataCmd, DemosCmd
+from tvf.cli.experiment import ExperimentCmd
 from tvf.cli.train import TrainCmd
 from tvf.cli.world import EvalCmd, EvalVfCmd, OracleCmd, QuickstartCmd, RenderCmd, TasksCmd, VizCmd
 from tvf.errors import TvfError
@@ -19,7 +20,8 @@ DESCRIPTION = """tvf: Transporters with Visual Foresight.
 
 Pipeline: `tvf tasks` (what can be built) -> `tvf oracle` / `tvf render` (the simulated world and its
 expert) -> `tvf demos` (datasets) -> `tvf train gctn|vf` (the models) -> `tvf eval` (closed loop).
-Run `tvf COMMAND --help` for each command's flags."""
+`tvf experiment` runs all of it and writes the report; `tvf quickstart` runs TVF-L with the shipped
+weights. Run `tvf COMMAND --help` for each command's flags."""
 
 COMMANDS: dict[str, type] = {
     "tasks": TasksCmd,
@@ -32,6 +34,7 @@ COMMANDS: dict[str, type] = {
     "eval": EvalCmd,
     "eval-vf": EvalVfCmd,
     "viz": VizCmd,
+    "experiment": ExperimentCmd,
 }
 
 

@@ -166,32 +166,57 @@ class RenderCmd:
 
 @dataclass(frozen=True)
 class QuickstartCmd:
-    """The README's main job: run the expert once on every task and write pictures of each episode."""
+    """The README's main job: TVF-L with the shipped lite weights on every unseen task, a report with GIFs.
+
+    Writes OUT/report.md, OUT/report.html, OUT/success.png and OUT/gifs/TASK-0.gif (the real episode beside
+    the imagined best path at each step). --expert instead runs the scripted expert once on every task.
+    """
 
     out: Path = Path("out/quickstart")
     """Output directory."""
+    episodes: int = 2
+    """Episodes per unseen task."""
     seed: int = 1
+    """Episode i uses seed SEED + 2i."""
     workers: int = 2
+    """Parallel processes."""
+    tasks: str = "unseen"
+    """Tasks to run: unseen | train | all | NAME[,NAME...]."""
+    expert: bool = False
+    """Run the expert on every task and write a gallery (index.md) instead."""
 
     def run(self) -> None:
-        from tvf.evaluate.quickstart import oracle_gallery
+        from tvf.evaluate.quickstart import oracle_gallery, tvf_quickstart
 
-        oracle_gallery(check_output_dir(self.out), self.seed, self.workers)
+        if self.episodes < 1 or self.workers < 1:
+            raise TvfError("--episodes and --workers must be at least 1")
+        if self.expert:
+            oracle_gallery(check_output_dir(self.out), self.seed, self.workers)
+        else:
+            tvf_quickstart(check_output_dir(self.out), self.episodes, self.seed, self.workers, self.tasks)
 
 
 @dataclass(frozen=True)
 class EvalCmd:
     """Evaluate a method in closed loop on test seeds; writes episodes.jsonl, summary.json, summary.md.
 
-    Example: tvf eval --method gctn --gctn runs/gctn --tasks unseen --episodes 20 --out eval/gctn
+    Methods: oracle (the expert, the ceiling), gctn (greedy GCTN), tvf-small (K=2, depth 1) and tvf-large
+    (K=3, depth 3). Without --gctn / --vf the shipped lite weights are used.
+    Example: tvf eval --method tvf-large --tasks unseen --episodes 20 --workers 2 --out eval/tvf-large
     """
 
     method: str = "gctn"
-    """oracle | gctn."""
+    """oracle | gctn | tvf-small | tvf-large."""
     out: Path = Path("out/eval")
     """Output directory (re-running the same command resumes)."""
     gctn: Path | None = None
-    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file."""
+    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    vf: Path | None = None
+    """VF run directory or checkpoint file (TVF methods); default: the shipped weights."""
+    k: int | None = None
+    """TVF: place proposals per node (default: the method's, 2 or 3)."""
+    depth: int | None = None
+    """TVF: search depth (default: the method's, 1 or 3)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...]."""
     episodes: int = 20
@@ -205,15 +230,21 @@ class EvalCmd:
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md)."""
 
+    def spec(self):
+        from tvf.evaluate.closed_loop import PolicySpec
+
+        path = lambda p: str(p) if p else None  # noqa: E731
+        return PolicySpec(self.method, path(self.gctn), path(self.vf), self.k, self.depth, self.step_slack)
+
     def run(self) -> None:
-        from tvf.evaluate.closed_loop import PolicySpec, evaluate, make_policy, summary_markdown
+        from tvf.evaluate.closed_loop import evaluate, make_policy, summary_markdown
         from tvf.tasks import resolve_tasks
 
         use_task_file(self.task_file)
         if self.episodes < 1 or self.workers < 1:
             raise TvfError("--episodes and --workers must be at least 1")
         names = [t.name for t in resolve_tasks(self.tasks)]
-        spec = PolicySpec(self.method, str(self.gctn) if self.gctn else None, self.step_slack)
+        spec = self.spec()
         make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
         check_output_dir(self.out)
         tf = str(self.task_file) if self.task_file else None
@@ -247,10 +278,50 @@ class VizGctn:
 
 
 @dataclass(frozen=True)
-class VizCmd:
-    """Pictures of the models' decisions: `tvf viz gctn ...`."""
+class VizPlan:
+    """One TVF decision: the proposals on the place map, every imagined node with its score, the best path.
 
-    command: tyro.conf.OmitArgPrefixes[Annotated[VizGctn, tyro.conf.subcommand("gctn")]]
+    Example: tvf viz plan --task stack-stair --seed 1 --out out/plan   (shipped weights unless --gctn/--vf)
+    """
+
+    task: str
+    """The task whose first scene is planned (see `tvf tasks`)."""
+    out: Path
+    """Output directory (plan.png, plan.json)."""
+    seed: int = 1
+    """Scene seed (odd seeds are the test split's)."""
+    gctn: Path | None = None
+    """GCTN run directory or checkpoint (default: the shipped weights)."""
+    vf: Path | None = None
+    """VF run directory or checkpoint (default: the shipped weights)."""
+    method: str = "tvf-large"
+    """tvf-small | tvf-large."""
+    k: int | None = None
+    """Place proposals per node (default: the method's)."""
+    depth: int | None = None
+    """Search depth (default: the method's)."""
+
+    def run(self) -> None:
+        from tvf.evaluate.closed_loop import PolicySpec, make_policy
+        from tvf.tasks import get_task
+        from tvf.viz.plan import visualise_plan
+
+        get_task(self.task)
+        if self.method not in ("tvf-small", "tvf-large"):
+            raise TvfError(f"--method must be tvf-small or tvf-large, got {self.method!r}")
+        path = lambda p: str(p) if p else None  # noqa: E731
+        policy = make_policy(PolicySpec(self.method, path(self.gctn), path(self.vf), self.k, self.depth))
+        out = visualise_plan(policy, self.task, self.seed, check_output_dir(self.out))
+        print(f"wrote {out} and plan.json")
+
+
+@dataclass(frozen=True)
+class VizCmd:
+    """Pictures of decisions: `tvf viz gctn ...` (heat maps) or `tvf viz plan ...` (a TVF search)."""
+
+    command: tyro.conf.OmitArgPrefixes[
+        Annotated[VizGctn, tyro.conf.subcommand("gctn")] | Annotated[VizPlan, tyro.conf.subcommand("plan")]
+    ]
     """What to draw."""
 
     def run(self) -> None:

@@ -15,26 +15,43 @@ from tvf.errors import TvfError
 from tvf.evaluate.runner import EpisodeResult, cached_env, run_episode, run_jobs
 from tvf.viz.images import atomic_write_bytes
 
-METHODS = ("oracle", "gctn")
+METHODS = ("oracle", "gctn", "tvf-small", "tvf-large")
 _POLICIES: dict = {}
 
 
 @dataclass(frozen=True)
 class PolicySpec:
+    """What to evaluate: a method and its checkpoints (None: the shipped weights) and planner overrides."""
+
     method: str
     gctn: str | None = None
+    vf: str | None = None
+    k: int | None = None
+    depth: int | None = None
     step_slack: int = 0
+
+    def planner(self):
+        """The planner configuration of a TVF method (preset plus the K and depth overrides)."""
+        from tvf.planning.search import planner_config
+
+        try:
+            return planner_config(self.method, self.k, self.depth)
+        except (KeyError, ValueError) as exc:
+            raise TvfError(
+                f"{exc.args[0]}; TVF methods are tvf-small and tvf-large, with K, depth >= 1"
+            ) from None
 
 
 def make_policy(spec: PolicySpec):
-    from tvf.evaluate.policies import GctnPolicy, OraclePolicy
+    """The policy object of a spec (models are loaded here; errors name the bad flag)."""
+    from tvf.evaluate.policies import GctnPolicy, OraclePolicy, TvfPolicy
 
     if spec.method == "oracle":
         return OraclePolicy()
     if spec.method == "gctn":
-        if not spec.gctn:
-            raise TvfError("--method gctn needs --gctn RUN (a run directory or checkpoint)")
         return GctnPolicy(spec.gctn)
+    if spec.method in METHODS:
+        return TvfPolicy(spec.gctn, spec.vf, spec.planner())
     raise TvfError(f"unknown method {spec.method!r}; choose one of {', '.join(METHODS)}")
 
 

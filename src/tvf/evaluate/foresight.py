@@ -70,7 +70,7 @@ def evaluate_foresight(vf_checkpoint: str | Path, data: str | Path, out: Path, m
     from tvf.evaluate.policies import resolve_checkpoint
     from tvf.models.checkpoint import load_model
 
-    model, _ = load_model(resolve_checkpoint(vf_checkpoint), "vf")
+    model, _ = load_model(resolve_checkpoint(vf_checkpoint, "vf"), "vf")
     model.eval()
     dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
     results: dict[str, dict[str, dict[str, list[float]]]] = {}

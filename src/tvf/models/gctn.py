@@ -169,9 +169,10 @@ def rotation_yaws(n_rotations: int) -> torch.Tensor:
 # Networks.
 
 
-INFERENCE_CHUNK = 8
-"""Largest batch run at once without gradients: per-state cost on the 2-core CPU rises above ~8
-(lite place_map 45-55 ms/state up to 8, 74-87 ms at 9-27)."""
+INFERENCE_CHUNK = 2
+"""Largest batch run at once without gradients. Per-state cost on the 2-core CPU rises with the batch
+(the FFT correlation is memory-bound). With one thread per process and another process beside it
+(the evaluation set-up), lite place_map took 122 / 81 / 108 / 186 ms per state at chunks 1 / 2 / 3 / 8."""
 
 
 def _require(goal: torch.Tensor | None) -> torch.Tensor:

@@ -34,9 +34,9 @@ from tvf.models.presets import ModelPreset
 
 ACTION_CHANNELS = 2 * RGBH_CHANNELS + 1
 HEIGHT_WEIGHT = 5.0
-INFERENCE_CHUNK = 8
-"""Largest batch predicted at once: on the 2-core CPU the time per image rises above ~16 (lite:
-5-6 ms per image up to 16, 11 ms at 27)."""
+INFERENCE_CHUNK = 4
+"""Largest batch predicted at once. With one thread per process and another process beside it (the
+evaluation set-up), lite took 18 / 13 / 20 / 16 / 28 ms per image at chunks 1 / 4 / 8 / 16 / 27."""
 
 
 def square_masks(centres: torch.Tensor, window: int, height: int, width: int) -> torch.Tensor:

@@ -1,0 +1,97 @@
+"""TVF decision latency: the batched tree search against the same search one node at a time.
+
+For each preset (and each device: CPU, and CUDA when present) one scene's first observation is planned
+with TVF-Large (K=3, depth 3: GCTN on 1 + 3 + 9 states, VF on 3 + 9 + 27 children) and TVF-Small
+(K=2, depth 1). The same models serve both modes in the same run. `lite` uses the shipped weights when
+they exist (realistic proposal counts); other presets use seeded random weights.
+
+Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
+[--repeats N] [--threads 2] [--task stack-pyramid]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import torch
+
+from common import best_seconds
+from tvf.models.gctn import GCTN
+from tvf.models.images import to_rgbh
+from tvf.models.presets import get_preset
+from tvf.models.vf import VisualForesight
+from tvf.planning.search import PlannerConfig, TreeSearch
+
+
+def load_models(preset_name: str, device: torch.device):
+    if preset_name == "lite":
+        try:
+            from tvf.evaluate.policies import load_policy_model
+
+            return (
+                load_policy_model(None, "gctn", str(device)),
+                load_policy_model(None, "vf", str(device)),
+                True,
+            )
+        except Exception:  # noqa: BLE001 - no shipped weights: fall back to random ones
+            pass
+    preset = get_preset(preset_name)
+    gctn = GCTN(preset, seed=0).eval().to(device)
+    vf = VisualForesight(preset, seed=1).eval().to(device)
+    return gctn, vf, False
+
+
+def first_observation(task: str, seed: int = 1):
+    from tvf.sim.env import TvfEnv
+
+    env = TvfEnv(task)
+    obs, info = env.reset(seed=seed)
+    goal = info["goal"]
+    env.close()
+    return to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
+
+
+def bench(preset_name: str, device: torch.device, images, repeats: int) -> dict:
+    gctn, vf, shipped = load_models(preset_name, device)
+    current, goal = (x.to(device) for x in images)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    out: dict = {"weights": "shipped" if shipped else "random"}
+    for name, k, depth in (("tvf-large", 3, 3), ("tvf-small", 2, 1)):
+        row = {}
+        for batched in (True, False):
+            search = TreeSearch(gctn, vf, PlannerConfig(k=k, depth=depth, batched=batched))
+
+            def decide(s=search) -> None:
+                s.search(current, goal)
+                sync()
+
+            row["batched_s" if batched else "node_by_node_s"] = best_seconds(decide, repeats)
+            row["counts" if batched else "counts_node_by_node"] = search.search(current, goal).counts
+        row["speedup"] = row["node_by_node_s"] / row["batched_s"]
+        out[name] = row
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--presets", default="lite,smoke")
+    parser.add_argument("--paper", action="store_true", help="also time the (slow on CPU) paper preset")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--task", default="stack-pyramid")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    images = first_observation(args.task)
+    devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    names = args.presets.split(",") + (["paper"] if args.paper else [])
+    results = {
+        str(device): {name: bench(name, device, images, args.repeats) for name in names} for device in devices
+    }
+    print(json.dumps({"planner": results, "threads": args.threads, "task": args.task}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,197 @@
+"""TVF tree search: expand GCTN proposals through imagined (visual-foresight) images, level by level.
+
+At every level all frontier states go through **one** batched GCTN call (pick argmax, then the place
+map at that pick) and all their children through **one** batched VF call. A node at depth ``d``
+(1-based) scores ``gamma**(d-1) * (C - D(o, o_goal))`` with
+
+    D(o, o_goal) = sum over pixels |H_n(o) - H_n(o_goal)| / (160 * 160 * 4),
+
+``H_n`` the normalised height channel (``(h - 0.00509) / 0.00904``). The divisor counts four channels
+although only height is compared: the reference's constant, kept because it sets the trade-off against
+the discount (one misplaced block moves D by ~0.015, the discount costs ~0.01 per level). The executed
+action is the first one on the path to the best node (ties: the shallowest, then the earliest), and
+the tree is rebuilt from the real observation after every step (receding horizon).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+from tvf.models.images import RGBH_CHANNELS
+from tvf.planning.proposals import Proposals, place_proposals
+
+HEIGHT_CHANNEL = RGBH_CHANNELS - 1
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Tree-search settings; the presets are the paper's TVF-Small and TVF-Large."""
+
+    k: int = 3
+    """Branching: place proposals per node (all share the node's argmax pick)."""
+    depth: int = 3
+    """Levels of imagined actions."""
+    alpha: float = 0.01
+    """Keep pixels whose place probability is at least alpha times the best."""
+    top_n: int = 100
+    """At most this many candidate pixels go into K-means."""
+    gamma: float = 0.99
+    """Discount per level."""
+    bonus: float = 1.0
+    """The constant C in gamma^(d-1) (C - D)."""
+    seed: int = 0
+    """K-means seed (each clustering restarts from it, so a decision is a pure function of its images)."""
+    batched: bool = True
+    """One model call per level (False: one node at a time, for benchmarks; same results)."""
+
+    def __post_init__(self) -> None:
+        if self.k < 1 or self.depth < 1:
+            raise ValueError(f"planner needs k >= 1 and depth >= 1, got k={self.k}, depth={self.depth}")
+
+
+PLANNERS: dict[str, PlannerConfig] = {
+    "tvf-small": PlannerConfig(k=2, depth=1),
+    "tvf-large": PlannerConfig(k=3, depth=3),
+}
+
+
+def planner_config(method: str, k: int | None = None, depth: int | None = None) -> PlannerConfig:
+    """The preset for ``method`` (tvf-small | tvf-large), with optional K and depth overrides."""
+    if method not in PLANNERS:
+        raise KeyError(f"unknown planner {method!r}; choose one of {', '.join(PLANNERS)}")
+    cfg = PLANNERS[method]
+    return replace(cfg, k=cfg.k if k is None else k, depth=cfg.depth if depth is None else depth)
+
+
+@dataclass
+class Node:
+    """One imagined action and its outcome. ``parent`` is -1 for children of the real state."""
+
+    index: int
+    parent: int
+    depth: int
+    pick: np.ndarray
+    place: np.ndarray
+    rotation: int
+    distance: float
+    score: float
+
+
+@dataclass
+class Plan:
+    """A searched tree: nodes in breadth-first order, the best node and the path to it."""
+
+    nodes: list[Node]
+    best: int
+    images: torch.Tensor | None = None
+    """Imagined normalised RGB-H of every node (N, 4, H, W), when kept."""
+    pick_logits: torch.Tensor | None = None
+    """The root's pick logits (H, W)."""
+    place_logits: torch.Tensor | None = None
+    """The root's place logits (R, H, W) at its pick."""
+    root_proposals: Proposals | None = None
+    counts: dict = field(default_factory=dict)
+    """Model calls and evaluated states: gctn_calls, vf_calls, gctn_states, vf_states."""
+
+    @property
+    def path(self) -> list[Node]:
+        """Nodes from depth 1 down to the best node."""
+        out = [self.nodes[self.best]]
+        while out[-1].parent >= 0:
+            out.append(self.nodes[out[-1].parent])
+        return out[::-1]
+
+    @property
+    def first(self) -> Node:
+        """The action to execute now."""
+        return self.path[0]
+
+
+def height_distance(images: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    """D(o, o_goal) per image: summed |normalised height difference| / (H * W * 4)."""
+    h, w = images.shape[-2:]
+    diff = (images[:, HEIGHT_CHANNEL] - goal[:, HEIGHT_CHANNEL]).abs()
+    return diff.sum(dim=(-2, -1)) / (h * w * RGBH_CHANNELS)
+
+
+def _unravel_pixels(flat: torch.Tensor, width: int) -> torch.Tensor:
+    return torch.stack([flat // width, flat % width], dim=1)
+
+
+def _chunks(n: int, batched: bool) -> list[slice]:
+    size = n if batched else 1
+    return [slice(i, i + size) for i in range(0, n, size)]
+
+
+class TreeSearch:
+    """The TVF planner over a GCTN (proposals) and a VF model (imagination)."""
+
+    def __init__(self, gctn, vf, config: PlannerConfig) -> None:
+        self.gctn, self.vf, self.config = gctn, vf, config
+        self.n_rotations = gctn.preset.n_rotations
+
+    @torch.no_grad()
+    def _propose(self, states: torch.Tensor, goal: torch.Tensor, goal_features: torch.Tensor):
+        """GCTN on every state: argmax picks (N, 2), place logits (N, R, H, W), pick logits (N, H, W)."""
+        picks, places, pick_logits = [], [], []
+        for part in _chunks(states.shape[0], self.config.batched):
+            logits = self.gctn.pick_logits(states[part], goal)
+            pick = _unravel_pixels(logits.flatten(1).argmax(dim=1), logits.shape[-1])
+            places.append(self.gctn.place_map(states[part], None, pick, goal_features))
+            picks.append(pick)
+            pick_logits.append(logits)
+        return torch.cat(picks), torch.cat(places), torch.cat(pick_logits)
+
+    @torch.no_grad()
+    def _imagine(self, states: torch.Tensor, picks, places, yaws) -> torch.Tensor:
+        parts = _chunks(states.shape[0], self.config.batched)
+        return torch.cat([self.vf.predict_rgbh(states[p], picks[p], places[p], yaws[p]) for p in parts])
+
+    @torch.no_grad()
+    def search(self, current: torch.Tensor, goal: torch.Tensor, keep_images: bool = False) -> Plan:
+        """Plan from the real state ``current`` towards ``goal`` (normalised RGB-H, (1, 4, H, W) each)."""
+        cfg = self.config
+        if not (torch.isfinite(current).all() and torch.isfinite(goal).all()):
+            raise ValueError("planner input contains NaN or infinity")
+        goal_features = self.gctn.transport.goal_features(goal)
+        states, ids = current, [-1]  # frontier images and their node indices (-1: the real state)
+        nodes: list[Node] = []
+        images: list[torch.Tensor] = []
+        plan = Plan(nodes, -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0))
+        for level in range(1, cfg.depth + 1):
+            picks, place_logits, pick_logits = self._propose(states, goal, goal_features)
+            proposals = place_proposals(place_logits, cfg.k, cfg.alpha, cfg.top_n, cfg.seed)
+            if level == 1:
+                plan.pick_logits, plan.place_logits = pick_logits[0], place_logits[0]
+                plan.root_proposals = proposals[0]
+            parent_rows = [i for i, p in enumerate(proposals) for _ in range(len(p))]
+            child_picks = picks.cpu()[parent_rows]
+            child_places = torch.as_tensor(np.concatenate([p.places for p in proposals]))
+            rotations = np.concatenate([p.rotations for p in proposals])
+            yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
+            children = self._imagine(states[parent_rows], child_picks, child_places, yaws)
+            distances = height_distance(children, goal)
+            scores = cfg.gamma ** (level - 1) * (cfg.bonus - distances)
+            first = len(nodes)
+            for j, row in enumerate(parent_rows):
+                nodes.append(Node(first + j, ids[row], level, child_picks[j].numpy(), child_places[j].numpy(),
+                                  int(rotations[j]), float(distances[j]), float(scores[j])))  # fmt: skip
+            self._count(plan, states.shape[0], children.shape[0])
+            if keep_images:
+                images.append(children)
+            states, ids = children, list(range(first, first + len(parent_rows)))
+        plan.best = int(np.argmax([n.score for n in nodes]))  # first maximum: the shallowest
+        plan.images = torch.cat(images) if keep_images else None
+        return plan
+
+    def _count(self, plan: Plan, gctn_states: int, vf_states: int) -> None:
+        """Model calls of one level: one per level when batched, one per state otherwise."""
+        batched = self.config.batched
+        plan.counts["gctn_states"] += gctn_states
+        plan.counts["vf_states"] += vf_states
+        plan.counts["gctn_calls"] += 1 if batched else gctn_states
+        plan.counts["vf_calls"] += 1 if batched else vf_states

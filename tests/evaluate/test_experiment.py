@@ -1,0 +1,67 @@
+"""`tvf experiment` end to end with the smoke preset: every stage, resume, and a changed-config refusal."""
+
+import json
+
+import pytest
+
+from tvf.errors import TvfError
+from tvf.evaluate.experiment import ExperimentConfig, run_experiment, ship_weights
+from tvf.models.checkpoint import load_model
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory):
+    cfg = ExperimentConfig(
+        out=tmp_path_factory.mktemp("exp"), demos=1, preset="smoke", test_demos=1, train_tasks="stack-tower",
+        tasks="stack-stair", methods="gctn,tvf-large", episodes=1, workers=1,
+    )  # fmt: skip
+    return cfg, run_experiment(cfg)
+
+
+def test_every_stage_writes_its_outputs(experiment):
+    cfg, report = experiment
+    out = cfg.out
+    assert report == out / "report.md" and report.exists() and (out / "report.html").exists()
+    assert (out / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for method, column in (("gctn", "GCTN"), ("tvf-large", "TVF-L")):
+        summary = json.loads((out / "eval" / method / "summary.json").read_text())
+        assert summary["method"] == method and summary["average"]["episodes"] == 1
+        assert column in report.read_text()
+    assert (out / "eval-vf" / "metrics.json").exists()
+    assert (out / "gifs" / "stack-stair-0.gif").read_bytes()[:6] == b"GIF89a"
+    assert "gifs/stack-stair-0.gif" in report.read_text()
+    provenance = json.loads((out / "weights" / "provenance.json").read_text())
+    assert provenance["models"]["gctn"]["step"] == 2 and provenance["models"]["vf"]["step"] == 2
+    assert provenance["experiment"]["preset"] == "smoke"
+    assert set(provenance["results"]) == {"gctn", "tvf-large"}
+    model, ckpt = load_model(out / "weights" / "gctn-lite.pt", "gctn")
+    assert ckpt.optimizer is None and ckpt.step == 2
+
+
+def test_rerun_resumes_without_redoing_work(experiment):
+    cfg, report = experiment
+    episodes = (cfg.out / "eval" / "tvf-large" / "episodes.jsonl").read_text()
+    gif = (cfg.out / "gifs" / "stack-stair-0.gif").stat().st_mtime_ns
+    run_experiment(cfg)
+    assert (cfg.out / "eval" / "tvf-large" / "episodes.jsonl").read_text() == episodes
+    assert (cfg.out / "gifs" / "stack-stair-0.gif").stat().st_mtime_ns == gif
+    commands = json.loads((cfg.out / "experiment.json").read_text())["commands"]
+    assert len(commands) == 2
+
+
+def test_other_settings_in_the_same_folder_are_refused(experiment):
+    cfg, _ = experiment
+    other = ExperimentConfig(**{**cfg.__dict__, "episodes": 3, "stages": "report"})
+    with pytest.raises(TvfError, match="other episodes"):
+        run_experiment(other)
+
+
+def test_bad_stage_method_and_preset_are_one_line_errors(tmp_path):
+    with pytest.raises(TvfError, match="unknown stage"):
+        run_experiment(ExperimentConfig(out=tmp_path, stages="data,fly"))
+    with pytest.raises(TvfError, match="unknown method"):
+        run_experiment(ExperimentConfig(out=tmp_path, methods="gctn,magic"))
+    with pytest.raises(TvfError, match="unknown preset"):
+        run_experiment(ExperimentConfig(out=tmp_path, preset="huge"))
+    with pytest.raises(TvfError, match="missing"):
+        ship_weights(tmp_path, tmp_path / "target")

@@ -1,0 +1,131 @@
+"""The experiment report: tables, averages by split, the paper row, HTML escaping, written files."""
+
+from __future__ import annotations
+
+import pytest
+
+from tvf.evaluate.closed_loop import summarise, wilson
+from tvf.evaluate.report import (
+    PAPER_UNSEEN_10_DEMOS,
+    group_average,
+    ordered_methods,
+    report_html,
+    report_markdown,
+    write_report,
+)
+from tvf.tasks import resolve_tasks
+
+UNSEEN = [t.name for t in resolve_tasks("unseen")]
+TRAIN = [t.name for t in resolve_tasks("train")]
+ODD = "odd<task>&"
+META = {"demos": 10, "preset": "lite", "episodes": 4, "commands": ["tvf eval --method gctn"]}
+
+
+def episodes(task: str, successes: int, n: int = 4, progress: float = 0.5) -> list[dict]:
+    """``n`` synthetic episode records on ``task``, the first ``successes`` of them successful."""
+    return [
+        {"task": task, "seed": 2 * i + 1, "success": i < successes, "progress": progress} for i in range(n)
+    ]
+
+
+def fake_summaries() -> dict[str, dict]:
+    """oracle solves everything; gctn 3/4 on unseen[0]; tvf-large 4/4 there; tvf-large misses unseen[1]."""
+    oracle = [r for t in UNSEEN + TRAIN for r in episodes(t, 4, progress=1.0)]
+    gctn = episodes(UNSEEN[0], 3) + episodes(UNSEEN[1], 1) + episodes(TRAIN[0], 2) + episodes(ODD, 1)
+    tvf = episodes(UNSEEN[0], 4, progress=0.9) + episodes(TRAIN[0], 0, progress=0.1)
+    # given out of order, with an unknown method name: it goes last
+    return {
+        "mine": summarise(episodes(UNSEEN[0], 0), "mine"),
+        "tvf-large": summarise(tvf, "tvf-large"),
+        "oracle": summarise(oracle, "oracle"),
+        "gctn": summarise(gctn, "gctn"),
+    }
+
+
+def md_row(md: str, first_cell: str) -> list[str]:
+    """The cells of the first Markdown table row starting with ``first_cell``."""
+    for line in md.splitlines():
+        cells = [c.strip() for c in line.strip("|").split(" | ")]
+        if cells[0] == first_cell:
+            return cells[1:]
+    raise AssertionError(f"no row {first_cell!r}")
+
+
+def test_method_order():
+    assert ordered_methods(fake_summaries()) == ["oracle", "gctn", "tvf-large", "mine"]
+
+
+def test_markdown_rows_cells_and_bold():
+    md = report_markdown(fake_summaries(), META)
+    assert md.startswith("# TVF experiment")
+    assert "| preset | lite |" in md and "| demos | 10 |" in md
+    for task in UNSEEN + TRAIN:
+        assert f"| {task} |" in md
+    lo, hi = wilson(3, 4)
+    assert f"75.0% [{100 * lo:.0f}–{100 * hi:.0f}]" == "75.0% [30–95]"
+    oracle, gctn, tvf, mine = md_row(md, UNSEEN[0])
+    assert oracle == "100.0% [51–100]"  # the oracle is never bold
+    assert gctn == "75.0% [30–95]" and tvf == "**100.0% [51–100]**" and mine == "0.0% [0–49]"
+    assert md_row(md, UNSEEN[1]) == ["100.0% [51–100]", "**25.0% [5–70]**", "–", "–"]
+    assert md.index("**Unseen tasks**") < md.index(f"| {UNSEEN[0]} |") < md.index("**Training tasks**")
+    assert md.index("**Training tasks**") < md.index(f"| {TRAIN[0]} |") < md.index("**Other tasks**")
+
+
+def test_group_average_uses_only_the_groups_tasks():
+    s = fake_summaries()["gctn"]
+    avg = group_average(s, UNSEEN)
+    assert avg["success"] == pytest.approx((0.75 + 0.25) / 2)
+    assert avg["ci95"] == pytest.approx(list(wilson(4, 8)))
+    assert avg["episodes"] == 8 and avg["tasks"] == 2 and avg["progress"] == pytest.approx(0.5)
+    assert group_average(s, TRAIN)["success"] == pytest.approx(0.5)
+    assert group_average(s, ["nope"]) is None
+    md = report_markdown(fake_summaries(), META)
+    assert md_row(md, "*unseen average*")[1] == "50.0% [22–78] \\*"  # gctn has 2 of the 8 unseen tasks
+    assert md_row(md, "*training average*")[1] == "**50.0% [15–85]** \\*"
+    assert md_row(md, "*other average*")[1] == "**25.0% [5–70]**"
+
+
+def test_paper_row_under_the_unseen_average():
+    md = report_markdown(fake_summaries(), META)
+    assert md_row(md, "*paper (10 demos)*") == ["–", "55.4%", "78.5%", "–"]
+    assert md.index("*unseen average*") < md.index("*paper (10 demos)*") < md.index("*training average*")
+    assert PAPER_UNSEEN_10_DEMOS == {"gctn": 0.554, "tvf-large": 0.785}
+    assert "only published numbers" in md
+
+
+def test_progress_table_and_images():
+    gifs = {UNSEEN[0]: "gifs/a b.gif", TRAIN[0]: "gifs/train.gif"}
+    md = report_markdown(fake_summaries(), META, gifs=gifs, chart="success.png")
+    progress = md[md.index("## Mean progress") :]
+    assert md_row(progress, UNSEEN[0]) == ["100.0%", "50.0%", "**90.0%**", "50.0%"]
+    assert "](<success.png>)" in md and "](<gifs/a b.gif>)" in md
+    assert "gifs/train.gif" not in md  # only unseen tasks get an episode
+    assert "TVF-L episode (left: real; right: imagined best path)" in md
+
+
+def test_html_is_self_contained_and_escaped():
+    page = report_html(fake_summaries(), META, gifs={UNSEEN[0]: "x.gif"}, chart="success.png")
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert "<table" in page and "<style>" in page and "<script" not in page and "http" not in page
+    assert "odd&lt;task&gt;&amp;" in page and ODD not in page
+    assert "<strong>100.0% [51–100]</strong>" in page
+    assert page.count("<tr") == page.count("</tr>") and page.count("<table") == page.count("</table>")
+    assert 'src="success.png"' in page and 'src="x.gif"' in page
+    assert "odd&lt;task&gt;&amp;" in report_markdown(fake_summaries(), META)
+
+
+def test_write_report_files(tmp_path):
+    md, page = write_report(tmp_path / "rep", fake_summaries(), META, gifs={UNSEEN[0]: "g.gif"})
+    out = tmp_path / "rep"
+    assert md == out / "report.md" and page == out / "report.html"
+    assert md.read_text().startswith("# TVF experiment") and page.read_text().startswith("<!DOCTYPE html>")
+    png = (out / "success.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 1000
+    assert "success.png" in md.read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["report.html", "report.md", "success.png"]  # no temps
+
+
+def test_write_report_without_tasks_has_no_chart(tmp_path):
+    md, _ = write_report(tmp_path, {"gctn": summarise([], "gctn")}, {})
+    assert not (tmp_path / "success.png").exists()
+    assert "success.png" not in md.read_text()
