@@ -4,18 +4,7 @@ import json
 
 import numpy as np
 import pytest
-
-from tvf.cli import main
-
-
-def run(capsys, *args: str) -> tuple[int, str, str]:
-    try:
-        main(list(args))
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
+from cli_run import run
 
 
 def test_tasks_json_lists_the_fourteen(capsys):

@@ -259,12 +259,12 @@ class VizGctn:
     Example: tvf viz gctn --gctn runs/gctn --task put-t --seed 1 --out out/viz
     """
 
-    gctn: Path
-    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file."""
     task: str
     """The task whose scene is drawn (see `tvf tasks`)."""
     out: Path
     """Output directory (gctn_decision.png, gctn_maps.npz)."""
+    gctn: Path | None = None
+    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
     seed: int = 1
     """Scene seed (odd seeds are the test split's)."""
 

@@ -73,13 +73,13 @@ def gctn_figure(obs: dict, goal: dict, d: dict, n_rotations: int) -> bytes:
     return buf.getvalue()
 
 
-def visualise_gctn(checkpoint: str | Path, task: str, seed: int, out: Path) -> Path:
+def visualise_gctn(checkpoint: str | Path | None, task: str, seed: int, out: Path) -> Path:
     """Reset ``task`` to ``seed``, run the GCTN once and write ``out/gctn_decision.png``."""
     from tvf.evaluate.policies import resolve_checkpoint
     from tvf.models.checkpoint import load_model
     from tvf.sim.env import TvfEnv
 
-    model, _ = load_model(resolve_checkpoint(checkpoint), "gctn")
+    model, _ = load_model(resolve_checkpoint(checkpoint, "gctn"), "gctn")
     model.eval()
     env = TvfEnv(task)
     try:

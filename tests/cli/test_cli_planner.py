@@ -3,23 +3,13 @@
 import json
 
 import pytest
+from cli_run import run
 
 import tvf.weights
-from tvf.cli import main
 from tvf.models.checkpoint import save_checkpoint
 from tvf.models.gctn import GCTN
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
-
-
-def run(capsys, *args: str) -> tuple[int, str, str]:
-    try:
-        main(list(args))
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -85,3 +75,10 @@ def test_missing_shipped_weights_and_wrong_checkpoints_are_one_line_errors(
     assert code == 2 and "expected 'vf'" in err
     code, _, err = run(capsys, "eval", "--method", "tvf-large", "--k", "0", "--out", str(tmp_path / "k"))
     assert code == 2 and "k >= 1" in err
+
+
+def test_viz_gctn_defaults_to_the_shipped_weights(capsys, tmp_path, smoke_weights, monkeypatch):
+    monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", smoke_weights)
+    code, out, err = run(capsys, "viz", "gctn", "--task", "stack-stair", "--out", str(tmp_path))
+    assert code == 0, err
+    assert (tmp_path / "gctn_decision.png").exists() and (tmp_path / "gctn_maps.npz").exists()
