@@ -34,6 +34,7 @@ def test_every_stage_writes_its_outputs(experiment):
     assert provenance["models"]["gctn"]["step"] == 2 and provenance["models"]["vf"]["step"] == 2
     assert provenance["experiment"]["preset"] == "smoke"
     assert set(provenance["results"]) == {"gctn", "tvf-large"}
+    assert provenance["results"]["gctn"]["unseen"]["episodes"] == 1
     model, ckpt = load_model(out / "weights" / "gctn-lite.pt", "gctn")
     assert ckpt.optimizer is None and ckpt.step == 2
 

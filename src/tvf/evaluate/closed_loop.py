@@ -45,13 +45,15 @@ class PolicySpec:
 def make_policy(spec: PolicySpec):
     """The policy object of a spec (models are loaded here; errors name the bad flag)."""
     from tvf.evaluate.policies import GctnPolicy, OraclePolicy, TvfPolicy
+    from tvf.train.trainer import pick_device
 
+    device = str(pick_device("auto"))  # the models run on CUDA when there is one
     if spec.method == "oracle":
         return OraclePolicy()
     if spec.method == "gctn":
-        return GctnPolicy(spec.gctn)
+        return GctnPolicy(spec.gctn, device)
     if spec.method in METHODS:
-        return TvfPolicy(spec.gctn, spec.vf, spec.planner())
+        return TvfPolicy(spec.gctn, spec.vf, spec.planner(), device)
     raise TvfError(f"unknown method {spec.method!r}; choose one of {', '.join(METHODS)}")
 
 
