@@ -79,3 +79,17 @@ def test_extra_must_be_plain_data(tmp_path: Path) -> None:
     with pytest.raises(TypeError, match=r"extra\['rng'\] is a ndarray"):
         save_checkpoint(tmp_path / "vf.pt", VisualForesight(SMOKE), extra={"rng": np.zeros(3)})
     assert not list(tmp_path.iterdir())
+
+
+def test_written_files_are_readable_by_others(tmp_path):
+    import stat
+
+    from tvf.models.checkpoint import save_checkpoint
+    from tvf.models.gctn import GCTN
+    from tvf.models.presets import get_preset
+    from tvf.viz.images import atomic_write_bytes
+
+    save_checkpoint(tmp_path / "m.pt", GCTN(get_preset("smoke")))
+    atomic_write_bytes(tmp_path / "r.md", b"x")
+    for name in ("m.pt", "r.md"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644

@@ -25,6 +25,7 @@ from torch import nn
 
 from tvf.errors import TvfError
 from tvf.models.presets import ModelPreset, PresetError
+from tvf.viz.images import PUBLIC_FILE_MODE
 
 FORMAT = "tvf-checkpoint"
 VERSION = 1
@@ -106,6 +107,7 @@ def save_checkpoint(
             torch.save(payload, f)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, PUBLIC_FILE_MODE)  # mkstemp makes 0600 files
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

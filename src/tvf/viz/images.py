@@ -38,6 +38,9 @@ def observation_panel(color: np.ndarray, height: np.ndarray, scale: int = 2) -> 
     return panel.repeat(scale, 0).repeat(scale, 1)
 
 
+PUBLIC_FILE_MODE = 0o644
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
     path = Path(path)
@@ -46,6 +49,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, PUBLIC_FILE_MODE)  # mkstemp makes 0600 files; outputs are meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
