@@ -251,6 +251,19 @@ def _flat_index(pixels: torch.Tensor, width: int) -> torch.Tensor:
     return pixels[:, 0] * width + pixels[:, 1]
 
 
+def argmax_pixels(logits: torch.Tensor) -> torch.Tensor:
+    """(B, H, W) maps -> (B, 2) int64 (row, col) of each map's maximum (the first one on ties)."""
+    b, h, w = logits.shape
+    return torch.stack(_unravel(logits.reshape(b, -1).argmax(dim=1), (h, w)), dim=1)
+
+
+def argmax_places(place_logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, R, H, W) place logits -> the best (row, col) (B, 2) and rotation bin (B,) of each state."""
+    b = place_logits.shape[0]
+    rot, row, col = _unravel(place_logits.reshape(b, -1).argmax(dim=1), tuple(place_logits.shape[1:]))
+    return torch.stack([row, col], dim=1), rot
+
+
 def _unravel(index: torch.Tensor, shape: tuple[int, ...]) -> list[torch.Tensor]:
     out = []
     for size in reversed(shape):
@@ -364,8 +377,7 @@ class GCTN(nn.Module):
         "place": (B, R, H, W) logits}.
         """
         pick_logits = self.pick_logits(current, goal)
-        b, h, w = pick_logits.shape
-        pick = torch.stack(_unravel(pick_logits.reshape(b, -1).argmax(dim=1), (h, w)), dim=1)
+        pick = argmax_pixels(pick_logits)
         place_logits = self.place_map(current, goal, pick)
-        rot, row, col = _unravel(place_logits.reshape(b, -1).argmax(dim=1), tuple(place_logits.shape[1:]))
-        return pick, torch.stack([row, col], dim=1), rot, {"pick": pick_logits, "place": place_logits}
+        place, rot = argmax_places(place_logits)
+        return pick, place, rot, {"pick": pick_logits, "place": place_logits}

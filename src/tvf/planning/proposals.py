@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from tvf.models.gctn import argmax_places
+
 
 @dataclass(frozen=True)
 class Proposals:
@@ -59,11 +61,10 @@ def kmeans(points: np.ndarray, k: int, rng: np.random.Generator, n_init: int = 1
 
 
 def _greedy(logits: torch.Tensor) -> Proposals:
-    r, h, w = logits.shape
-    flat = int(logits.reshape(-1).argmax())
-    rot, rest = divmod(flat, h * w)
-    row, col = divmod(rest, w)
-    return Proposals(np.array([[row, col]]), np.array([rot]), np.array([float(logits.reshape(-1)[flat])]))
+    """The GCTN's own choice (:func:`tvf.models.gctn.argmax_places`) as a single proposal."""
+    place, rot = argmax_places(logits[None])
+    value = float(logits[rot[0], place[0, 0], place[0, 1]])
+    return Proposals(place.numpy(), rot.numpy(), np.array([value]))
 
 
 def state_proposals(

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from tvf.models.gctn import argmax_pixels
 from tvf.models.images import RGBH_CHANNELS
 from tvf.planning.proposals import Proposals, place_proposals
 
@@ -118,10 +119,6 @@ def height_distance(images: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
     return diff.sum(dim=(-2, -1)) / (h * w * RGBH_CHANNELS)
 
 
-def _unravel_pixels(flat: torch.Tensor, width: int) -> torch.Tensor:
-    return torch.stack([flat // width, flat % width], dim=1)
-
-
 def _chunks(n: int, batched: bool) -> list[slice]:
     size = n if batched else 1
     return [slice(i, i + size) for i in range(0, n, size)]
@@ -140,7 +137,7 @@ class TreeSearch:
         picks, places, pick_logits = [], [], []
         for part in _chunks(states.shape[0], self.config.batched):
             logits = self.gctn.pick_logits(states[part], goal)
-            pick = _unravel_pixels(logits.flatten(1).argmax(dim=1), logits.shape[-1])
+            pick = argmax_pixels(logits)
             places.append(self.gctn.place_map(states[part], None, pick, goal_features))
             picks.append(pick)
             pick_logits.append(logits)
