@@ -237,7 +237,7 @@ class EvalCmd:
         return PolicySpec(self.method, path(self.gctn), path(self.vf), self.k, self.depth, self.step_slack)
 
     def run(self) -> None:
-        from tvf.evaluate.closed_loop import evaluate, make_policy, summary_markdown
+        from tvf.evaluate.closed_loop import cached_policy, evaluate, summary_markdown
         from tvf.tasks import resolve_tasks
 
         use_task_file(self.task_file)
@@ -245,7 +245,7 @@ class EvalCmd:
             raise TvfError("--episodes and --workers must be at least 1")
         names = [t.name for t in resolve_tasks(self.tasks)]
         spec = self.spec()
-        make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
+        cached_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
         check_output_dir(self.out)
         tf = str(self.task_file) if self.task_file else None
         summary = evaluate(spec, names, self.episodes, self.seed_start, self.workers, self.out, tf)

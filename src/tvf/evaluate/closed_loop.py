@@ -57,11 +57,16 @@ def make_policy(spec: PolicySpec):
     raise TvfError(f"unknown method {spec.method!r}; choose one of {', '.join(METHODS)}")
 
 
-def policy_episode(task: str, seed: int, spec: PolicySpec) -> EpisodeResult:
-    """One closed-loop episode: reset to ``seed``, act until success or the horizon (plus slack)."""
+def cached_policy(spec: PolicySpec):
+    """This process's policy for ``spec`` (models are loaded once per process)."""
     if spec not in _POLICIES:
         _POLICIES[spec] = make_policy(spec)
-    policy = _POLICIES[spec]
+    return _POLICIES[spec]
+
+
+def policy_episode(task: str, seed: int, spec: PolicySpec) -> EpisodeResult:
+    """One closed-loop episode: reset to ``seed``, act until success or the horizon (plus slack)."""
+    policy = cached_policy(spec)
     env = cached_env(task)
     act = lambda obs, goal: policy.act(env, obs, goal)  # noqa: E731
     return run_episode(env, seed, act, env.task.horizon + spec.step_slack)

@@ -67,11 +67,9 @@ def transition_metrics(
 def evaluate_foresight(vf_checkpoint: str | Path, data: str | Path, out: Path, max_episodes: int = 20,
                        figure_per_task: int = 1) -> dict:  # fmt: skip
     """Evaluate on the test split's oracle transitions; writes metrics.json, metrics.md and figures."""
-    from tvf.evaluate.policies import resolve_checkpoint
-    from tvf.models.checkpoint import load_model
+    from tvf.evaluate.policies import load_policy_model
 
-    model, _ = load_model(resolve_checkpoint(vf_checkpoint, "vf"), "vf")
-    model.eval()
+    model = load_policy_model(vf_checkpoint, "vf")
     dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
     results: dict[str, dict[str, dict[str, list[float]]]] = {}
     figures: list[tuple[str, dict]] = []

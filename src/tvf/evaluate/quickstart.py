@@ -53,34 +53,27 @@ def oracle_gallery(out: Path, seed: int = 1, workers: int = 2) -> list[EpisodeRe
     return results
 
 
-_QUICK_POLICY: dict = {}
-
-
 def tvf_episode(task: str, seed: int, gif: str | None) -> EpisodeResult:
     """One TVF-L episode with the shipped weights; with ``gif`` its frames and imagined paths are recorded."""
-    from tvf.evaluate.closed_loop import PolicySpec, make_policy
+    from tvf.evaluate.closed_loop import PolicySpec, cached_policy, policy_episode
     from tvf.viz.plan import record_episode
 
-    if "policy" not in _QUICK_POLICY:
-        _QUICK_POLICY["policy"] = make_policy(PolicySpec("tvf-large"))
-    policy = _QUICK_POLICY["policy"]
+    spec = PolicySpec("tvf-large")
     if gif:
-        return record_episode(policy, task, seed, Path(gif))
-    policy.keep_images = False
-    env = cached_env(task)
-    return run_episode(env, seed, lambda obs, goal: policy.act(env, obs, goal), env.task.horizon)
+        return record_episode(cached_policy(spec), task, seed, Path(gif))
+    return policy_episode(task, seed, spec)
 
 
 def tvf_quickstart(
     out: Path, episodes: int = 2, seed: int = 1, workers: int = 2, tasks: str = "unseen"
 ) -> Path:
     """TVF-L (shipped lite weights) on ``tasks`` for ``episodes`` episodes each; writes the report."""
-    from tvf.evaluate.closed_loop import PolicySpec, make_policy, summarise
+    from tvf.evaluate.closed_loop import PolicySpec, cached_policy, summarise
     from tvf.evaluate.report import write_report
     from tvf.tasks import resolve_tasks
     from tvf.weights import provenance
 
-    make_policy(PolicySpec("tvf-large"))  # fail fast when the shipped weights are missing
+    cached_policy(PolicySpec("tvf-large"))  # fail fast when the shipped weights are missing
     names = [t.name for t in resolve_tasks(tasks)]
     jobs = [(t, seed + 2 * i, str(out / "gifs" / f"{t}-0.gif") if i == 0 else None)
             for t in names for i in range(episodes)]  # fmt: skip

@@ -75,12 +75,10 @@ def gctn_figure(obs: dict, goal: dict, d: dict, n_rotations: int) -> bytes:
 
 def visualise_gctn(checkpoint: str | Path | None, task: str, seed: int, out: Path) -> Path:
     """Reset ``task`` to ``seed``, run the GCTN once and write ``out/gctn_decision.png``."""
-    from tvf.evaluate.policies import resolve_checkpoint
-    from tvf.models.checkpoint import load_model
+    from tvf.evaluate.policies import load_policy_model
     from tvf.sim.env import TvfEnv
 
-    model, _ = load_model(resolve_checkpoint(checkpoint, "gctn"), "gctn")
-    model.eval()
+    model = load_policy_model(checkpoint, "gctn")
     env = TvfEnv(task)
     try:
         obs, info = env.reset(seed=seed)

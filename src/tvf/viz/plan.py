@@ -65,9 +65,12 @@ def record_episode(policy, task: str, seed: int, path: Path, fps: float = 1.0, s
         return action
 
     last: dict = {}
-    result = run_episode(
-        env, seed, act, env.task.horizon + step_slack, on_obs=lambda o, g: last.update(o=o, g=g)
-    )
+    try:
+        result = run_episode(
+            env, seed, act, env.task.horizon + step_slack, on_obs=lambda o, g: last.update(o=o, g=g)
+        )
+    finally:
+        policy.keep_images = False  # only recorded episodes keep every imagined image
     frames.append(episode_frame(last["o"]["color"], None, last["g"]["color"]))  # the final state
     save_gif(path, _pad_width(frames), fps)
     return result
