@@ -66,3 +66,10 @@ def test_bad_stage_method_and_preset_are_one_line_errors(tmp_path):
         run_experiment(ExperimentConfig(out=tmp_path, preset="huge"))
     with pytest.raises(TvfError, match="missing"):
         ship_weights(tmp_path, tmp_path / "target")
+
+
+def test_corrupt_experiment_record_is_a_one_line_error(tmp_path):
+    (tmp_path / "experiment.json").write_text('{"demos": 10,')
+    with pytest.raises(TvfError, match="not valid JSON"):
+        run_experiment(ExperimentConfig(out=tmp_path, stages="report"))
+    assert (tmp_path / "experiment.json").read_text() == '{"demos": 10,'  # nothing overwritten

@@ -123,20 +123,29 @@ def _say(message: str) -> None:
     print(f"[experiment] {message}", flush=True)
 
 
+def _read_recorded(path: Path) -> dict:
+    """EXP/experiment.json as a dict ({} when there is none); a corrupt file is a clear error."""
+    if not path.exists():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise TvfError(f"{path} is not valid JSON; restore it or choose another --out") from None
+
+
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
     keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship")}
     keep = json.loads(json.dumps(keep, default=str))
-    if path.exists():
-        old = {k: v for k, v in json.loads(path.read_text()).items() if k != "commands"}
-        changed = sorted(k for k in keep if old.get(k) != keep[k])
-        if changed:
-            raise TvfError(
-                f"{cfg.out} holds an experiment with other {', '.join(changed)}; "
-                "use the same flags or another --out"
-            )
-    commands = json.loads(path.read_text()).get("commands", []) if path.exists() else []
+    recorded = _read_recorded(path)
+    changed = sorted(k for k in keep if recorded and recorded.get(k) != keep[k])
+    if changed:
+        raise TvfError(
+            f"{cfg.out} holds an experiment with other {', '.join(changed)}; "
+            "use the same flags or another --out"
+        )
+    commands = recorded.get("commands", [])
     commands.append(" ".join(["tvf", *sys.argv[1:]]) if sys.argv else "tvf experiment")
     cfg.out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, json.dumps({**keep, "commands": commands}, indent=1).encode())
@@ -235,9 +244,9 @@ def _meta(cfg: ExperimentConfig) -> dict:
         f"GCTN {cfg.gctn_steps} steps x batch {cfg.gctn_batch} (lr {cfg.gctn_lr:g}); "
         f"VF {cfg.vf_steps} steps x batch {cfg.vf_batch} (lr {cfg.vf_lr:g})"
     )
-    path = cfg.out / "experiment.json"
-    if path.exists():
-        meta["commands"] = "; ".join(json.loads(path.read_text()).get("commands", []))
+    commands = _read_recorded(cfg.out / "experiment.json").get("commands", [])
+    if commands:
+        meta["commands"] = "; ".join(commands)
     return meta
 
 
@@ -280,7 +289,7 @@ def stage_weights(cfg: ExperimentConfig) -> Path:
     from tvf.weights import FILES
 
     out = cfg.out / "weights"
-    record: dict = {"experiment": json.loads((cfg.out / "experiment.json").read_text()), "models": {}}
+    record: dict = {"experiment": _read_recorded(cfg.out / "experiment.json"), "models": {}}
     for kind in ("gctn", "vf"):
         model, ckpt = load_model(resolve_checkpoint(cfg.out / kind, kind), kind)
         run_config = json.loads((cfg.out / kind / "config.json").read_text())
