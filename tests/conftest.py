@@ -2,6 +2,7 @@
 
 * pytest-xdist runs two workers on two cores, so each uses one torch thread.
 * Tasks registered from a user's task file (``--task-file``) are forgotten after each test.
+* Policies cached by evaluation are forgotten after each test (tests swap the shipped weights).
 """
 
 import pytest
@@ -18,3 +19,11 @@ def _forget_registered_tasks():
     yield
     tvf.tasks._EXTRA.clear()
     tvf.tasks._EXTRA.update(before)
+
+
+@pytest.fixture(autouse=True)
+def _forget_cached_policies():
+    yield
+    from tvf.evaluate import closed_loop
+
+    closed_loop._POLICIES.clear()
