@@ -1,4 +1,4 @@
-"""GCTN costs on this CPU: train-step time at batch 1 and 8, greedy action time, planner place maps.
+"""GCTN costs on this CPU: train-step time at batch 1, 2 and 8, greedy action time, planner place maps.
 
 Prints one JSON object. Usage: python benchmarks/gctn.py [--paper] [--presets lite,smoke] [--repeats N]
 [--threads 2] [--nchw]. The ``paper`` preset runs only with --paper (minutes on a CPU).
@@ -27,9 +27,9 @@ def random_batch(batch: int, generator: torch.Generator, n_rotations: int) -> di
 
 def gctn_size(model: GCTN, preset: ModelPreset) -> dict[str, float]:
     """Parameters and forward GMACs (convolutions only; the correlation is counted separately)."""
-    padded = preset.image_size + preset.crop
+    side = preset.image_size if preset.pad_features else preset.image_size + preset.crop
     attention_macs = count_conv_macs(model.attention.fcn, (1, 8, preset.image_size, preset.image_size))
-    transport_macs = 3 * count_conv_macs(model.transport.key, (1, 4, padded, padded))
+    transport_macs = 3 * count_conv_macs(model.transport.key, (1, 4, side, side))
     return {
         "params_attention": count_parameters(model.attention),
         "params_transport": count_parameters(model.transport),
@@ -55,7 +55,7 @@ def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict
     torch.manual_seed(0)
     model = set_channels_last(GCTN(preset), channels_last)
     out: dict[str, object] = {"preset": preset.as_dict(), **gctn_size(model, preset)}
-    for batch_size in (1, 8):
+    for batch_size in (1, 2, 8):
         batch = random_batch(batch_size, generator, preset.n_rotations)
         seconds = train_step_seconds(model, batch, repeats)
         out[f"train_step_s_b{batch_size}"] = seconds

@@ -73,3 +73,14 @@ def test_corrupt_experiment_record_is_a_one_line_error(tmp_path):
     with pytest.raises(TvfError, match="not valid JSON"):
         run_experiment(ExperimentConfig(out=tmp_path, stages="report"))
     assert (tmp_path / "experiment.json").read_text() == '{"demos": 10,'  # nothing overwritten
+
+
+def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
+    from tvf.evaluate.experiment import _train_config
+
+    lite = ExperimentConfig(out=tmp_path, preset="lite").resolved()
+    gctn = _train_config(lite, "gctn")
+    assert (gctn.steps, gctn.batch, gctn.schedule, gctn.warmup) == (14000, 2, "cosine", 500)
+    assert _train_config(lite, "vf").schedule == "constant"
+    mine = ExperimentConfig(out=tmp_path, preset="lite", gctn_steps=10, gctn_schedule="constant").resolved()
+    assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)

@@ -13,6 +13,7 @@ from torch import nn
 from tvf.geometry import rotate_pixels, se2_output_to_input, warp_images
 from tvf.models.gctn import (
     GCTN,
+    channel_bins,
     cross_correlate_conv,
     cross_correlate_fft,
     rotated_crops,
@@ -21,6 +22,7 @@ from tvf.models.gctn import (
 from tvf.models.presets import SMOKE
 
 R = SMOKE.n_rotations
+QUARTER = SMOKE.replace(symmetry=4, pad_features=True)  # lite's transport set-up at smoke size
 CENTRE = np.array([79.5, 79.5])  # centre of a 160 x 160 image in pixel coordinates
 
 
@@ -127,14 +129,19 @@ def _draw_marks(image: torch.Tensor, centres: np.ndarray) -> None:
         image[r - 1 : r + 2, c - 1 : c + 2] = 1.0
 
 
-@pytest.mark.parametrize("rot_bin", [4, 9, 22, 31])
-def test_transport_peaks_at_the_turned_copy(rot_bin: int) -> None:
+@pytest.mark.parametrize(
+    ("rot_bin", "preset"),
+    [(4, SMOKE), (9, SMOKE), (22, SMOKE), (31, SMOKE), (3, QUARTER), (33, QUARTER)],
+)
+def test_transport_peaks_at_the_turned_copy(rot_bin: int, preset) -> None:
     """Object at the pick in the current image, the goal shows it turned by yaw_r at q -> argmax (r, q).
 
     FCNs are replaced by pointwise stubs: key = 1, query = height, goal = 1 + height. The label at
     (place pixel, bin r) is then achievable only if the query crop turns by +yaw (geometry's convention).
+    With a quarter-turn symmetric preset the map has 9 channels and ``act`` turns the channel back into
+    the bin.
     """
-    model = GCTN(SMOKE)
+    model = GCTN(preset)
     model.transport.key = ChannelStub(3, scale=0.0, offset=1.0)
     model.transport.query = ChannelStub(3)
     model.transport.goal = ChannelStub(3, offset=1.0)
@@ -147,18 +154,42 @@ def test_transport_peaks_at_the_turned_copy(rot_bin: int) -> None:
     _draw_marks(goal[0, 3], rotate_pixels(marks, yaw, pick) + (place - pick))
     with torch.no_grad():
         logits = model.place_map(current, goal, torch.tensor(np.array([pick])))[0]
-    found_bin, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
-    assert found_bin == rot_bin
+    assert logits.shape[0] == preset.place_rotations
+    channel, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
+    assert model.channel_bins[channel] == rot_bin
     assert abs(row - place[0]) <= 1 and abs(col - place[1]) <= 1
 
 
-def test_gctn_with_pointwise_nets_is_equivariant_to_90_degree_turns(generator: torch.Generator) -> None:
+def test_channel_bins_cover_one_period_centred_on_no_turn() -> None:
+    assert channel_bins(36).tolist() == list(range(36))
+    assert channel_bins(36, 4).tolist() == [0, 1, 2, 3, 4, 32, 33, 34, 35]  # 0..40, -40..-10 degrees
+    assert channel_bins(36, 2).tolist() == [*range(9), *range(27, 36)]
+    for symmetry in (1, 2, 4):
+        period = 36 // symmetry
+        bins = channel_bins(36, symmetry)
+        assert ((bins - torch.arange(period)) % period == 0).all()  # bin b is labelled on channel b % P
+
+
+def test_symmetric_transport_labels_equivalent_turns_alike(generator: torch.Generator) -> None:
+    """With quarter-turn symmetry, bins b, b + 9, b + 18, b + 27 are one label (the same turn of a cube)."""
+    model = GCTN(QUARTER)
+    batch = pick_place_batch(2, generator)
+    current, goal, pick, place = batch["current"], batch["goal"], batch["pick"], batch["place"]
+    losses = [model.loss(current, goal, pick, place, (batch["rot"] + 9 * k) % 36) for k in range(4)]
+    for other in losses[1:]:
+        torch.testing.assert_close(other["place"], losses[0]["place"])
+    _, _, rot, maps = model.act(batch["current"], batch["goal"])
+    assert maps["place"].shape[1] == 9 and set(rot.tolist()) <= set(channel_bins(36, 4).tolist())
+
+
+@pytest.mark.parametrize("preset", [SMOKE, QUARTER], ids=["full-turn", "quarter-symmetric"])
+def test_gctn_with_pointwise_nets_is_equivariant_to_90_degree_turns(generator: torch.Generator, preset):
     """Turning the scene by +90 degrees (rot90 k=-1) turns both maps and keeps the rotation bins.
 
     Pointwise (1x1, bias-free) nets are exactly rotation-equivariant, unlike a random CNN; this pins
     the pick crop centre, the padding and the alignment of the correlation output.
     """
-    model = GCTN(SMOKE)
+    model = GCTN(preset)
     model.attention.fcn = nn.Conv2d(8, 1, 1, bias=False)
     for name in ("key", "query", "goal"):
         setattr(model.transport, name, nn.Conv2d(4, 3, 1, bias=False))

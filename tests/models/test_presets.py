@@ -22,6 +22,8 @@ def test_bad_presets_raise_tvf_errors() -> None:
         get_preset("huge")
     with pytest.raises(TvfError, match="multiples of 8"):
         SMOKE.replace(crop=30)
+    with pytest.raises(TvfError, match="divisor of n_rotations"):
+        SMOKE.replace(symmetry=5)
     with pytest.raises(TvfError, match="unknown preset fields"):
         ModelPreset.from_dict({**SMOKE.as_dict(), "depth": 3})
 

@@ -34,6 +34,7 @@ def state_of(image: torch.Tensor) -> int:
 class ToyGctn:
     preset = SimpleNamespace(n_rotations=ROTATIONS)
     transport = SimpleNamespace(goal_features=lambda goal: goal)
+    channel_bins = torch.arange(ROTATIONS)
 
     def __init__(self) -> None:
         self.calls = []
@@ -99,8 +100,9 @@ def test_node_by_node_search_gives_the_same_plan():
     assert b.counts["gctn_calls"] == 7 and b.counts["vf_calls"] == 10
 
 
-def test_real_models_batched_equals_node_by_node():
-    preset = get_preset("smoke")
+@pytest.mark.parametrize("symmetry", [1, 4])
+def test_real_models_batched_equals_node_by_node(symmetry: int):
+    preset = get_preset("smoke").replace(symmetry=symmetry, pad_features=symmetry > 1)
     gctn, vf = GCTN(preset, seed=1).eval(), VisualForesight(preset, seed=2).eval()
     gen = torch.Generator().manual_seed(0)
     current, goal = torch.randn(1, 4, 160, 160, generator=gen), torch.randn(1, 4, 160, 160, generator=gen)
@@ -111,6 +113,7 @@ def test_real_models_batched_equals_node_by_node():
     for x, y in zip(plans[0].nodes, plans[1].nodes, strict=True):
         assert x.place.tolist() == y.place.tolist() and x.rotation == y.rotation
         assert x.score == pytest.approx(y.score, abs=1e-5)
+        assert x.rotation in gctn.channel_bins.tolist()  # nodes hold bins of a full turn
 
 
 def test_height_distance_uses_the_reference_normalisation():

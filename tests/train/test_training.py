@@ -13,7 +13,7 @@ from tvf.data.format import Episode, episode_name, write_episode
 from tvf.geometry import WORKSPACE
 from tvf.models.checkpoint import CheckpointError, load_checkpoint
 from tvf.train.jobs import gctn_job, vf_job
-from tvf.train.trainer import TrainConfig, TrainError, train
+from tvf.train.trainer import TrainConfig, TrainError, learning_rate, train
 
 TASKS = ("stack-stair", "put-t")
 
@@ -121,3 +121,50 @@ def test_smoke_gctn_trains_then_evaluates_end_to_end(data_root, tmp_path):
     episode = json.loads((tmp_path / "eval" / "episodes.jsonl").read_text().splitlines()[0])
     assert episode["steps"] == 3 and len(episode["actions"]) == 3  # the horizon of stack-stair
     assert (tmp_path / "eval" / "summary.md").exists()
+
+
+def test_learning_rate_schedules():
+    cfg = TrainConfig(data=".", out=".", steps=100, lr=2e-4)
+    assert [learning_rate(cfg, s) for s in (1, 50, 100)] == [2e-4] * 3
+    cos = replace(cfg, schedule="cosine", warmup=10)
+    assert learning_rate(cos, 5) == pytest.approx(1e-4)  # linear warm-up
+    assert learning_rate(cos, 10) == pytest.approx(2e-4)  # the peak
+    assert learning_rate(cos, 55) == pytest.approx(1e-4)  # half-way through the decay
+    assert learning_rate(cos, 100) == pytest.approx(0.0, abs=1e-12)
+    lrs = [learning_rate(cos, s) for s in range(10, 101)]
+    assert all(a >= b for a, b in zip(lrs, lrs[1:], strict=False))
+
+
+def test_interrupted_cosine_run_resumes_exactly_and_cannot_be_extended(data_root, tmp_path):
+    full = config(data_root, tmp_path / "full", schedule="cosine", warmup=1, lr=1e-3)
+    train(full, gctn_job(full))
+    part = replace(full, out=tmp_path / "part")
+    job = gctn_job(part)
+    draw, calls = job.train_batch, []
+
+    def interrupted(rng):
+        calls.append(1)
+        if len(calls) == 3:  # the session ends during step 3 (a checkpoint was written at step 2)
+            raise KeyboardInterrupt
+        return draw(rng)
+
+    job.train_batch = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        train(part, job)
+    resumed = replace(part, resume=True)
+    train(resumed, gctn_job(resumed))
+    a = load_checkpoint(tmp_path / "full" / "checkpoints" / "last.pt", "gctn").model
+    b = load_checkpoint(tmp_path / "part" / "checkpoints" / "last.pt", "gctn").model
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    lrs = [json.loads(x).get("lr") for x in (tmp_path / "part" / "metrics.jsonl").read_text().splitlines()]
+    assert lrs[-2] == 0.0  # the last logged training step ends the decay
+    longer = replace(resumed, steps=8)
+    with pytest.raises(TrainError, match="different schedule"):
+        train(longer, gctn_job(longer))
+
+
+def test_bad_schedules_are_clear_errors(data_root, tmp_path):
+    for bad, match in ((dict(schedule="linear"), "unknown --schedule"), (dict(warmup=4), "--warmup")):
+        cfg = config(data_root, tmp_path / "bad", **{"schedule": "cosine", **bad})
+        with pytest.raises(TrainError, match=match):
+            train(cfg, gctn_job(cfg))

@@ -160,9 +160,23 @@ def rotated_crops(
     return turned[:, :, lo : lo + crop, lo : lo + crop].reshape(b, r, c, crop, crop)
 
 
-def rotation_yaws(n_rotations: int) -> torch.Tensor:
-    """Yaw of each rotation bin: ``i * 2*pi / n_rotations``."""
-    return torch.arange(n_rotations, dtype=torch.float32) * (2 * math.pi / n_rotations)
+def rotation_yaws(n_rotations: int, symmetry: int = 1) -> torch.Tensor:
+    """Yaw of each place-map channel: ``channel_bins(n_rotations, symmetry) * 2*pi / n_rotations``."""
+    return channel_bins(n_rotations, symmetry).float() * (2 * math.pi / n_rotations)
+
+
+def channel_bins(n_rotations: int, symmetry: int = 1) -> torch.Tensor:
+    """The rotation bin (of ``n_rotations`` per turn) that each place-map channel scores.
+
+    With ``symmetry`` s the map has P = n_rotations / s channels: the bins of one period centred on no
+    turn, channel c holding the signed turn ``((c + P//2) mod P) - P//2`` bins. Every bin b is then the
+    same turn (for the object) as channel ``b mod P``, which is the training label. With s = 1 the
+    channel is the bin itself; with 36 bins and s = 4: channels 0..8 are turns of 0, 10, ..., 40, -40,
+    ..., -10 degrees.
+    """
+    period = n_rotations // symmetry
+    signed = (torch.arange(period) + period // 2) % period - period // 2
+    return signed % n_rotations
 
 
 # --------------------------------------------------------------------------------------------
@@ -216,15 +230,22 @@ class Transport(nn.Module):
         self.pad = preset.crop // 2
         self.image_size = preset.image_size
         self.correlate = CORRELATIONS[preset.correlation]
-        self.register_buffer("yaws", rotation_yaws(preset.n_rotations), persistent=False)
+        self.pad_features = preset.pad_features
+        self.register_buffer("yaws", rotation_yaws(preset.n_rotations, preset.symmetry), persistent=False)
 
     def _padded(self, images: torch.Tensor) -> torch.Tensor:
         p = self.pad
         return F.pad(images, (p, p, p, p))
 
+    def _features(self, net: nn.Module, images: torch.Tensor) -> torch.Tensor:
+        """``net``'s feature maps of the images padded by ``crop / 2`` (B, C, P, P)."""
+        if self.pad_features:
+            return self._padded(net(images))
+        return net(self._padded(images))
+
     def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
-        """Goal FCN output on the padded goal (B or 1, C, P, P); cache it when the goal is reused."""
-        return self.goal(self._padded(goal))
+        """Goal feature maps (B or 1, C, P, P); cache them when the goal is reused."""
+        return self._features(self.goal, goal)
 
     def forward(
         self,
@@ -233,14 +254,16 @@ class Transport(nn.Module):
         pick: torch.Tensor,
         goal_features: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Place logits (B, R, H, W) for picks ``pick`` (B, 2); pass ``goal`` or ``goal_features``."""
+        """Place logits (B, R, H, W) for picks ``pick`` (B, 2); pass ``goal`` or ``goal_features``.
+
+        R = ``preset.place_rotations``; channel r turns the object by ``self.yaws[r]``.
+        """
         if goal_features is None:
             goal_features = self.goal_features(_require(goal))
         b = current.shape[0]
         goal_features = _match_batch(goal_features, b)
-        padded = self._padded(current)
-        keys = goal_features * self.key(padded)
-        queries = goal_features * self.query(padded)
+        keys = goal_features * self._features(self.key, current)
+        queries = goal_features * self._features(self.query, current)
         kernels = rotated_crops(queries, pick, self.pad, self.crop, self.yaws)
         logits = self.correlate(keys.contiguous(), kernels)
         n = self.image_size
@@ -279,7 +302,11 @@ def gctn_loss(
     place_pixels: torch.Tensor,
     rot_bins: torch.Tensor,
 ) -> dict[str, torch.Tensor]:
-    """Softmax cross-entropies: pick over H*W pixels, place over R*H*W; returns pick, place, total."""
+    """Softmax cross-entropies: pick over H*W pixels, place over R*H*W; returns pick, place, total.
+
+    ``rot_bins`` are bins of a full turn; bin b is labelled on channel ``b mod R`` (see
+    :func:`channel_bins`), the same turn when the map covers one symmetry period.
+    """
     b, h, w = pick_logits.shape
     r = place_logits.shape[1]
     pick_target = _flat_index(pick_pixels, w)
@@ -301,6 +328,8 @@ class GCTN(nn.Module):
         generator = torch.Generator().manual_seed(seed)
         self.attention = Attention(preset, generator)
         self.transport = Transport(preset, generator)
+        bins = channel_bins(preset.n_rotations, preset.symmetry)
+        self.register_buffer("channel_bins", bins, persistent=False)
 
     def config(self) -> dict:
         """Everything needed to rebuild this model (stored in checkpoints)."""
@@ -373,11 +402,11 @@ class GCTN(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         """Greedy action: argmax pick, then argmax place and rotation bin at that pick.
 
-        Returns pick (B, 2), place (B, 2), rotation bin (B,) and maps {"pick": (B, H, W) logits,
-        "place": (B, R, H, W) logits}.
+        Returns pick (B, 2), place (B, 2), rotation bin of a full turn (B,) and maps {"pick": (B, H, W)
+        logits, "place": (B, R, H, W) logits}.
         """
         pick_logits = self.pick_logits(current, goal)
         pick = argmax_pixels(pick_logits)
         place_logits = self.place_map(current, goal, pick)
-        place, rot = argmax_places(place_logits)
-        return pick, place, rot, {"pick": pick_logits, "place": place_logits}
+        place, channel = argmax_places(place_logits)
+        return pick, place, self.channel_bins[channel], {"pick": pick_logits, "place": place_logits}

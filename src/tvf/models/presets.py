@@ -26,9 +26,15 @@ class ModelPreset:
         transport_width: width multiplier of the three transport (place) FCNs.
         vf_width: width multiplier of the visual-foresight FCN.
         image_size: side of the square RGB-H images (pixels).
-        n_rotations: rotation bins of the transport; bin ``i`` is yaw ``i * 2*pi / n_rotations``.
+        n_rotations: rotation bins of a full turn; bin ``i`` is yaw ``i * 2*pi / n_rotations``.
+        symmetry: the moved objects look the same after a turn of ``2*pi / symmetry`` (4 for the
+            cubic blocks). The transport then scores only the ``n_rotations // symmetry`` bins of one
+            period, centred on no turn (docs/models.md, "Rotational symmetry").
         crop: side of the transport kernel cut around the pick (pixels, a multiple of 8).
         transport_channels: feature channels of the key / query / goal maps.
+        pad_features: the transport FCNs run on the image and their feature maps are zero-padded by
+            ``crop / 2``; otherwise (the reference) the image is padded and the FCNs run on the
+            larger map, which costs (1 + crop / image_size)^2 as much.
         correlation: "fft" or "conv" cross-correlation of the transport.
         vf_window: side of the VF pick / place masks (pixels).
         vf_pad: zero (= mean value) padding around the VF input, cropped off after the FCN.
@@ -42,8 +48,10 @@ class ModelPreset:
     vf_width: float
     image_size: int = 160
     n_rotations: int = 36
+    symmetry: int = 1
     crop: int = 64
     transport_channels: int = 3
+    pad_features: bool = False
     correlation: str = "fft"
     vf_window: int = 44
     vf_pad: int = 22
@@ -57,6 +65,11 @@ class ModelPreset:
             raise PresetError("image_size + 2 * vf_pad must be a multiple of 4 (the VF FCN is 4s)")
         if self.correlation not in ("fft", "conv"):
             raise PresetError(f"correlation must be 'fft' or 'conv', not {self.correlation!r}")
+        if self.symmetry < 1 or self.n_rotations % self.symmetry:
+            raise PresetError(
+                f"symmetry must be a positive divisor of n_rotations ({self.n_rotations}), "
+                f"not {self.symmetry}"
+            )
         if self.vf_window % 2:
             raise PresetError("vf_window must be even")
 
@@ -73,6 +86,11 @@ class ModelPreset:
             raise PresetError(f"unknown preset fields: {unknown}")
         return cls(**data)
 
+    @property
+    def place_rotations(self) -> int:
+        """Rotation channels of the place map: the bins of one symmetry period."""
+        return self.n_rotations // self.symmetry
+
     def replace(self, **changes: Any) -> ModelPreset:
         """A copy with some fields changed."""
         return ModelPreset.from_dict({**self.as_dict(), **changes})
@@ -80,7 +98,14 @@ class ModelPreset:
 
 PAPER = ModelPreset(name="paper", attention_width=1.0, transport_width=1.0, vf_width=1.0)
 LITE = ModelPreset(
-    name="lite", attention_width=0.125, transport_width=0.125, vf_width=0.25, crop=64, vf_pad=0
+    name="lite",
+    attention_width=0.125,
+    transport_width=0.125,
+    vf_width=0.25,
+    crop=64,
+    vf_pad=0,
+    symmetry=4,
+    pad_features=True,
 )
 SMOKE = ModelPreset(
     name="smoke", attention_width=0.0625, transport_width=0.0625, vf_width=0.0625, crop=32, vf_pad=0

@@ -20,7 +20,8 @@ from tvf.models.gctn import argmax_places
 
 @dataclass(frozen=True)
 class Proposals:
-    """Place proposals of one state, best first: pixels (n, 2) (row, col), rotation bins (n,), logits (n,)."""
+    """Place proposals of one state, best first: pixels (n, 2) (row, col), place-map rotation channels
+    (n,), logits (n,)."""
 
     places: np.ndarray
     rotations: np.ndarray

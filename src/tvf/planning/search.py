@@ -168,7 +168,8 @@ class TreeSearch:
             parent_rows = [i for i, p in enumerate(proposals) for _ in range(len(p))]
             child_picks = picks.cpu()[parent_rows]
             child_places = torch.as_tensor(np.concatenate([p.places for p in proposals]))
-            rotations = np.concatenate([p.rotations for p in proposals])
+            channels = np.concatenate([p.rotations for p in proposals])
+            rotations = self.gctn.channel_bins.cpu().numpy()[channels]  # bins of a full turn
             yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
             children = self._imagine(states[parent_rows], child_picks, child_places, yaws)
             distances = height_distance(children, goal)

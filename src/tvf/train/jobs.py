@@ -14,7 +14,7 @@ from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.models.images import to_rgbh
 from tvf.models.presets import get_preset
 from tvf.tasks import resolve_tasks
-from tvf.train.trainer import Task, TrainConfig, TrainError, fingerprint
+from tvf.train.trainer import Task, TrainConfig, TrainError, fingerprint, schedule_config
 
 PICK_TOLERANCE_PX = 6
 """A predicted pick within this many pixels of the label lies on the same 4 cm block (12.8 px)."""
@@ -63,7 +63,7 @@ def _stack(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
 
 def _base_config(kind: str, cfg: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
     return {"kind": kind, "preset": get_preset(cfg.preset).as_dict(), "seed": cfg.seed, "batch": cfg.batch,
-            "lr": cfg.lr, **data}  # fmt: skip
+            "lr": cfg.lr, "schedule": schedule_config(cfg), **data}  # fmt: skip
 
 
 def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_kwargs) -> Task:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import shutil
 import time
 from collections.abc import Callable
@@ -51,6 +52,12 @@ class TrainConfig:
     """Optimiser steps in total (a resumed run continues up to this number)."""
     batch: int = 8
     lr: float = 1e-4
+    """Learning rate (the peak one with --schedule cosine)."""
+    schedule: str = "constant"
+    """constant | cosine: linear warm-up over --warmup steps, then a cosine decay to 0 at --steps
+    (a cosine run cannot later be extended to more steps)."""
+    warmup: int = 0
+    """Linear warm-up steps of the cosine schedule."""
     seed: int = 0
     """Run seed: demo subset, weight initialisation and every batch's augmentation."""
     tasks: str = "train"
@@ -80,6 +87,26 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+SCHEDULES = ("constant", "cosine")
+
+
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    """The learning rate of optimiser step ``step`` (1-based): a pure function, so resumes are exact."""
+    if cfg.schedule == "constant":
+        return cfg.lr
+    if step <= cfg.warmup:
+        return cfg.lr * step / cfg.warmup
+    progress = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+    return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, progress)))
+
+
+def schedule_config(cfg: TrainConfig) -> dict[str, Any]:
+    """What fixes the schedule; a resumed run must match it (a cosine run's length is part of it)."""
+    if cfg.schedule == "constant":
+        return {"name": "constant"}
+    return {"name": cfg.schedule, "warmup": cfg.warmup, "steps": cfg.steps}
+
+
 def fingerprint(items: list[Any]) -> str:
     """A short stable hash of JSON-able items (the data a run was trained on)."""
     return hashlib.sha1(json.dumps(items, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -102,11 +129,12 @@ class RunDir:
         """Create the run directory, or check that a resumed one was made with the same config."""
         if self.config_path.exists():
             old = json.loads(self.config_path.read_text())
+            old.setdefault("schedule", {"name": "constant"})  # runs made before schedules existed
             if not resume:
                 raise TrainError(
                     f"{self.root} already holds a run; pass --resume to continue it or choose another --out"
                 )
-            keys = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr")
+            keys = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule")
             changed = [k for k in keys if old.get(k) != config.get(k)]
             if changed:
                 raise TrainError(
@@ -158,6 +186,10 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
 
     if cfg.steps < 1 or cfg.batch < 1:
         raise TrainError("--steps and --batch must be at least 1")
+    if cfg.schedule not in SCHEDULES:
+        raise TrainError(f"unknown --schedule {cfg.schedule!r}; choose {' or '.join(SCHEDULES)}")
+    if not 0 <= cfg.warmup < cfg.steps:
+        raise TrainError(f"--warmup must be at least 0 and below --steps ({cfg.steps}), not {cfg.warmup}")
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = pick_device(cfg.device)
@@ -199,6 +231,9 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
         for step in range(start + 1, cfg.steps + 1):
             model.train()
             batch = _to(job.train_batch(np.random.default_rng([cfg.seed, step])), device)
+            lr = learning_rate(cfg, step)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
                 loss, metrics = job.loss(batch)
             if not torch.isfinite(loss):
@@ -214,6 +249,7 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
                 now = time.perf_counter()
                 means = {k: float(np.mean([m[k] for m in window])) for k in window[0]}
                 means["steps_per_s"] = len(window) / max(now - t_last, 1e-9)
+                means["lr"] = lr
                 t_last, window = now, []
                 run.log({"step": step, "split": "train", **means})
                 for k, v in means.items():
