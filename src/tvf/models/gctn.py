@@ -4,7 +4,9 @@ Inputs are normalised RGB-H tensors ``(B, 4, H, W)`` (see :mod:`tvf.models.image
 image (RGB + height, not the reference's RGBHHH). Pixels are ``(row, col)`` int64 ``(B, 2)``.
 
 Rotation convention (see :mod:`tvf.geometry`): place logit ``[b, r, u, v]`` scores "pick at the pick
-pixel, turn the object by world yaw ``r * 2*pi / R`` and put it at pixel ``(u, v)``". To score it, the
+pixel, turn the object by world yaw ``transport.yaws[r]`` and put it at pixel ``(u, v)``"; that yaw is
+``r * 2*pi / 36`` for the 36-channel presets, and one period of the object's symmetry, centred on no
+turn, when ``preset.symmetry`` > 1 (:func:`channel_bins`). To score it, the
 query features around the pick are turned by **+yaw** (content motion ``p' = R(yaw)(p - pick) + pick``
 in (col, row), i.e. :func:`tvf.geometry.se2_output_to_input` with ``+yaw``), so the rotated crop shows
 the object as it will look after the place; the crop is then cross-correlated with the goal-fused
