@@ -16,7 +16,6 @@ Stages (each one skips or resumes what is already in EXP):
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -243,7 +242,7 @@ def _summaries(cfg: ExperimentConfig) -> dict[str, dict]:
 def _meta(cfg: ExperimentConfig) -> dict:
     meta = {k: getattr(cfg, k) for k in ("preset", "demos", "episodes", "seed", "seed_start", "step_slack")}
     meta["training"] = (
-        f"GCTN {cfg.gctn_steps} steps x batch {cfg.gctn_batch} (lr {cfg.gctn_lr:g}); "
+        f"GCTN {cfg.gctn_steps} steps x batch {cfg.gctn_batch} (lr {cfg.gctn_lr:g} {cfg.gctn_schedule}); "
         f"VF {cfg.vf_steps} steps x batch {cfg.vf_batch} (lr {cfg.vf_lr:g})"
     )
     commands = _read_recorded(cfg.out / "experiment.json").get("commands", [])
@@ -312,7 +311,7 @@ def ship_weights(exp_weights: Path, target: Path) -> None:
     for name in ("gctn-lite.pt", "vf-lite.pt", "provenance.json"):
         if not (exp_weights / name).exists():
             raise TvfError(f"{exp_weights / name} is missing; run the experiment's weights stage first")
-        shutil.copyfile(exp_weights / name, target / name)
+        atomic_write_bytes(target / name, (exp_weights / name).read_bytes())
 
 
 RUNNERS = {
