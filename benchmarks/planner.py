@@ -27,11 +27,11 @@ from tvf.planning.search import PlannerConfig, TreeSearch
 def load_models(preset_name: str, device: torch.device):
     if preset_name == "lite":
         try:
-            from tvf.evaluate.policies import load_policy_model
+            from tvf.models.checkpoint import load_trained
 
             return (
-                load_policy_model(None, "gctn", str(device)),
-                load_policy_model(None, "vf", str(device)),
+                load_trained(None, "gctn", device),
+                load_trained(None, "vf", device),
                 True,
             )
         except Exception:  # noqa: BLE001 - no shipped weights: fall back to random ones

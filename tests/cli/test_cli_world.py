@@ -15,7 +15,7 @@ def test_tasks_json_lists_the_fourteen(capsys):
 
 
 def test_unknown_task_is_one_line_and_exit_2(capsys):
-    code, _, err = run(capsys, "oracle", "--task", "stack-moon")
+    code, _, err = run(capsys, "oracle", "--tasks", "stack-moon")
     assert code == 2
     assert err.strip().count("\n") == 0
     assert "unknown task 'stack-moon'" in err and "stack-tower" in err
@@ -66,7 +66,7 @@ def test_render_to_unwritable_directory(capsys, tmp_path):
 def test_oracle_reports_success_and_writes_json(capsys, tmp_path):
     out = tmp_path / "oracle.json"
     code, text, _ = run(
-        capsys, "oracle", "--task", "stack-stair", "--episodes", "1", "--seed", "3", "--json", str(out)
+        capsys, "oracle", "--tasks", "stack-stair", "--episodes", "1", "--seed-start", "3", "--json", str(out)
     )
     assert code == 0 and "stack-stair" in text
     doc = json.loads(out.read_text())

@@ -13,9 +13,10 @@ from data_factory import make_episode
 
 from tvf.data import GenerationPlan, generate, open_dataset, read_episode, split_seeds
 from tvf.data.dataset import FAILURES, MANIFEST
-from tvf.data.format import episode_name, tmp_path, write_h5
+from tvf.data.format import episode_name, write_h5
 from tvf.data.generation import Outcome, action_schedule, read_failures
-from tvf.tasks import get_task
+from tvf.io import temp_path
+from tvf.tasks import Task, get_task
 
 
 def test_split_seeds_have_the_split_parity():
@@ -39,14 +40,15 @@ def test_action_schedules():
 FAILING = {2, 8, 10}
 
 
-def fake_job(task: str, split: str, seed: int, folder: str) -> Outcome:
+def fake_job(task: Task, split: str, seed: int, folder: str) -> Outcome:
     """Fails on FAILING seeds; finishes in a seed-dependent order; writes a small synthetic episode."""
+    task = task.name
     time.sleep(((seed * 7919) % 13) / 400)
     if seed in FAILING:
         return Outcome(task, seed, False, reason="fake failure", steps=1)
     final = Path(folder) / task / episode_name(seed)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_path(final).with_name(f".{final.name}.{seed}.tmp")
+    tmp = temp_path(final).with_name(f".{final.name}.{seed}.tmp")
     ep = make_episode(task, seed, steps=2, split=split, rng_seed=seed)
     ep.color, ep.height = np.zeros_like(ep.color), np.zeros_like(ep.height)  # small files
     write_h5(tmp, ep)

@@ -5,7 +5,8 @@ import json
 import pytest
 
 from tvf.errors import TvfError
-from tvf.evaluate.closed_loop import PolicySpec, evaluate, wilson
+from tvf.evaluate.closed_loop import evaluate, wilson
+from tvf.policies import PolicySpec
 
 
 def test_wilson_interval():
@@ -24,8 +25,8 @@ def test_oracle_evaluation_writes_outputs_and_resumes(tmp_path, capsys):
     evaluate(spec, ["stack-stair"], 1, 1, 1, tmp_path)
     assert len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 1  # nothing re-run
     assert "resuming" in capsys.readouterr().out
-    with pytest.raises(TvfError, match="other settings"):
-        evaluate(PolicySpec("oracle", step_slack=2), ["stack-stair"], 1, 1, 1, tmp_path)
+    with pytest.raises(TvfError, match="other step_slack"):  # the changed setting is named
+        evaluate(spec, ["stack-stair"], 1, 1, 1, tmp_path, step_slack=2)
 
 
 def test_gctn_needs_a_checkpoint(tmp_path, monkeypatch):

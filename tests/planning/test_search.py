@@ -9,7 +9,7 @@ import torch
 from tvf.models.gctn import GCTN
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
-from tvf.planning.search import PlannerConfig, TreeSearch, height_distance, planner_config
+from tvf.planning.search import PlannerConfig, TreeSearch, height_distance
 
 SIZE, ROTATIONS = 8, 4
 # Toy world: a state is an id kept in pixel (0, 0) of channel 0; its height channel is a constant whose
@@ -124,12 +124,7 @@ def test_height_distance_uses_the_reference_normalisation():
     assert height_distance(a, b).item() == pytest.approx(169 * 4.4 / (160 * 160 * 4))
 
 
-def test_presets_and_overrides():
-    assert (planner_config("tvf-small").k, planner_config("tvf-small").depth) == (2, 1)
-    assert (planner_config("tvf-large").k, planner_config("tvf-large").depth) == (3, 3)
-    assert planner_config("tvf-large", k=5, depth=2) == PlannerConfig(k=5, depth=2)
-    with pytest.raises(KeyError):
-        planner_config("tvf-huge")
+def test_planner_config_is_validated():
     with pytest.raises(ValueError):
         PlannerConfig(k=0)
 

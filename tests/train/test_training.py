@@ -12,6 +12,7 @@ import torch
 from tvf.data.format import Episode, episode_name, write_episode
 from tvf.geometry import WORKSPACE
 from tvf.models.checkpoint import CheckpointError, load_checkpoint
+from tvf.runs import RunError
 from tvf.train.jobs import gctn_job, vf_job
 from tvf.train.trainer import TrainConfig, TrainError, learning_rate, train
 
@@ -50,7 +51,8 @@ def data_root(tmp_path_factory):
 
 def config(data_root, out, **kw) -> TrainConfig:
     base = TrainConfig(
-        data=data_root, out=out, demos=2, preset="smoke", steps=4, batch=2, tasks=",".join(TASKS),
+        data=data_root, out=out, demos=2, preset="smoke", steps=4, batch=2, lr=1e-4, schedule="constant",
+        warmup=0, tasks=",".join(TASKS),
         val_every=4, val_samples=4, checkpoint_every=2, log_every=2, progress=False,
     )  # fmt: skip
     return replace(base, **kw)
@@ -88,10 +90,10 @@ def test_resumed_run_equals_uninterrupted_run(data_root, tmp_path):
 def test_existing_run_needs_resume_and_matching_flags(data_root, tmp_path):
     cfg = config(data_root, tmp_path / "run", steps=2)
     train(cfg, gctn_job(cfg))
-    with pytest.raises(TrainError, match="--resume"):
+    with pytest.raises(RunError, match="--resume"):
         train(cfg, gctn_job(cfg))
     other = replace(cfg, resume=True, preset="lite")
-    with pytest.raises(TrainError, match="different preset"):
+    with pytest.raises(RunError, match="different preset"):
         train(other, gctn_job(other))
 
 
@@ -110,7 +112,8 @@ def test_too_few_demos_is_a_clear_error(data_root, tmp_path):
 
 
 def test_smoke_gctn_trains_then_evaluates_end_to_end(data_root, tmp_path):
-    from tvf.evaluate.closed_loop import PolicySpec, evaluate
+    from tvf.evaluate.closed_loop import evaluate
+    from tvf.policies import PolicySpec
 
     cfg = config(data_root, tmp_path / "run", steps=2)
     train(cfg, gctn_job(cfg))
@@ -124,7 +127,7 @@ def test_smoke_gctn_trains_then_evaluates_end_to_end(data_root, tmp_path):
 
 
 def test_learning_rate_schedules():
-    cfg = TrainConfig(data=".", out=".", steps=100, lr=2e-4)
+    cfg = TrainConfig(data=".", out=".", steps=100, lr=2e-4, schedule="constant", warmup=0)
     assert [learning_rate(cfg, s) for s in (1, 50, 100)] == [2e-4] * 3
     cos = replace(cfg, schedule="cosine", warmup=10)
     assert learning_rate(cos, 5) == pytest.approx(1e-4)  # linear warm-up
@@ -159,7 +162,7 @@ def test_interrupted_cosine_run_resumes_exactly_and_cannot_be_extended(data_root
     lrs = [json.loads(x).get("lr") for x in (tmp_path / "part" / "metrics.jsonl").read_text().splitlines()]
     assert lrs[-2] == 0.0  # the last logged training step ends the decay
     longer = replace(resumed, steps=8)
-    with pytest.raises(TrainError, match="different schedule"):
+    with pytest.raises(RunError, match="different schedule"):
         train(longer, gctn_job(longer))
 
 

@@ -11,9 +11,12 @@ import sys
 import tyro
 
 from tvf.cli.data import DataCmd, DemosCmd
+from tvf.cli.evaluation import EvalCmd, EvalVfCmd
 from tvf.cli.experiment import ExperimentCmd
+from tvf.cli.quickstart import QuickstartCmd
 from tvf.cli.train import TrainCmd
-from tvf.cli.world import EvalCmd, EvalVfCmd, OracleCmd, QuickstartCmd, RenderCmd, TasksCmd, VizCmd
+from tvf.cli.viz import VizCmd
+from tvf.cli.world import OracleCmd, RenderCmd, TasksCmd
 from tvf.errors import TvfError
 
 DESCRIPTION = """tvf: Transporters with Visual Foresight.

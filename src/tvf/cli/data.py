@@ -9,7 +9,7 @@ from typing import Annotated
 
 import tyro
 
-from tvf.cli.world import check_output_dir, use_task_file
+from tvf.cli.common import at_least_one, check_output_dir
 from tvf.errors import TvfError
 
 
@@ -36,23 +36,21 @@ class DemosCmd:
     max_tries: int = 3
     """Give up on a task after this many times EPISODES seeds (at least EPISODES + 5)."""
     task_file: Path | None = None
-    """A YAML or JSON file of extra tasks (docs/tasks.md)."""
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
 
     def run(self) -> None:
         from tvf.data.format import SPLITS
         from tvf.data.generation import GenerationPlan, generate
-        from tvf.tasks import resolve_tasks
+        from tvf.tasks import load_tasks
 
-        use_task_file(self.task_file)
+        table = load_tasks(self.task_file)
         if self.split not in SPLITS:
             raise TvfError(f"--split must be one of {', '.join(SPLITS)}, got {self.split!r}")
-        if self.episodes < 1 or self.workers < 1 or self.max_tries < 1:
-            raise TvfError("--episodes, --workers and --max-tries must be at least 1")
-        tasks = tuple(t.name for t in resolve_tasks(self.tasks))
+        at_least_one(episodes=self.episodes, workers=self.workers, max_tries=self.max_tries)
+        tasks = tuple(t.name for t in table.resolve(self.tasks))
         check_output_dir(self.out / self.split)
         plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries)
-        tf = str(self.task_file) if self.task_file else None
-        report = generate(plan, self.workers, progress=True, task_file=tf)
+        report = generate(plan, self.workers, progress=True, tasks=table)
         print(
             f"{plan.folder}: {report.generated} episodes written, {report.skipped} already there, "
             f"{len(report.failures)} failed seeds; {report.seconds:.0f} s"
@@ -131,7 +129,7 @@ class DataShow:
 
     def run(self) -> None:
         from tvf.data.format import read_episode
-        from tvf.data.show import save_episode_view
+        from tvf.viz.episode import save_episode_view
 
         if self.out.suffix.lower() not in (".gif", ".png"):
             raise TvfError(f"--out must end in .gif or .png, got {self.out}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tvf.evaluate.experiment import ExperimentConfig
+from tvf.experiment.pipeline import ExperimentConfig, run_experiment
 
 
 @dataclass(frozen=True)
@@ -17,7 +17,5 @@ class ExperimentCmd(ExperimentConfig):
     """
 
     def run(self) -> None:
-        from tvf.evaluate.experiment import run_experiment
-
         report = run_experiment(self)
         print(f"done: {report} and {report.with_suffix('.html')}")

@@ -7,38 +7,38 @@ from typing import Annotated
 
 import tyro
 
-from tvf.train.trainer import TrainConfig
+from tvf.train.registry import training_job
+from tvf.train.trainer import TrainConfig, train
 
 
 @dataclass(frozen=True)
 class TrainGctn(TrainConfig):
     """Train the goal-conditioned Transporter (pick attention + goal-conditioned place transport).
 
-    Example: tvf train gctn --data data/demos --demos 10 --preset lite --steps 2000 --out runs/gctn
+    Unset --steps/--batch/--lr/--schedule/--warmup come from the preset's recipe (lite: 14000 steps x
+    batch 2, lr 2e-4 cosine with 500 warm-up steps: the shipped weights' recipe).
+    Example: tvf train gctn --data data/demos --demos 10 --preset lite --out runs/gctn
     """
 
     def run(self) -> None:
-        from tvf.train.jobs import gctn_job
-        from tvf.train.trainer import train
-
-        report(train(self, gctn_job(self)), self)
+        run_training(self, "gctn")
 
 
 @dataclass(frozen=True)
 class TrainVf(TrainConfig):
     """Train the visual-foresight model (next RGB-H image from the current one and an action).
 
-    Example: tvf train vf --data data/demos --demos 10 --preset lite --steps 2000 --out runs/vf
+    Unset recipe flags come from the preset's recipe (lite: 3000 steps x batch 8, lr 1e-4).
+    Example: tvf train vf --data data/demos --demos 10 --preset lite --out runs/vf
     """
 
     def run(self) -> None:
-        from tvf.train.jobs import vf_job
-        from tvf.train.trainer import train
-
-        report(train(self, vf_job(self)), self)
+        run_training(self, "vf")
 
 
-def report(val: dict[str, float], cfg: TrainConfig) -> None:
+def run_training(cfg: TrainConfig, kind: str) -> None:
+    resolved, job = training_job(cfg, kind)
+    val = train(resolved, job)
     shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"
     print(f"done: {cfg.out}/checkpoints/last.pt ({shown})")
 

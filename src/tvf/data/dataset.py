@@ -9,7 +9,6 @@ or stale manifest is rebuilt by reading the file headers.
 from __future__ import annotations
 
 import json
-import os
 import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -27,8 +26,9 @@ from tvf.data.format import (
     EpisodeInfo,
     read_episode,
     read_info,
-    tmp_path,
 )
+from tvf.io import atomic_write_bytes
+from tvf.tasks import all_tasks
 
 MANIFEST = "manifest.json"
 FAILURES = "failures.jsonl"
@@ -41,8 +41,6 @@ def episode_files(root: Path) -> list[Path]:
 
 def _task_order(names: Iterable[str]) -> list[str]:
     """Task names in the task table's order, unknown (user) tasks after them alphabetically."""
-    from tvf.tasks import all_tasks
-
     table = {name: i for i, name in enumerate(all_tasks())}
     return sorted(set(names), key=lambda n: (table.get(n, len(table)), n))
 
@@ -123,12 +121,7 @@ def build_manifest(dataset: DemoDataset, failures: int = 0) -> dict[str, Any]:
 def write_manifest(dataset: DemoDataset, failures: int = 0) -> Path:
     """Write ``manifest.json`` atomically (temporary file + rename, ordinary permissions)."""
     path = dataset.root / MANIFEST
-    tmp = tmp_path(path)
-    try:
-        tmp.write_text(json.dumps(build_manifest(dataset, failures), indent=1) + "\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write_bytes(path, (json.dumps(build_manifest(dataset, failures), indent=1) + "\n").encode())
     return path
 
 
@@ -197,6 +190,12 @@ def split_dirs(path: str | Path) -> list[Path]:
     path = Path(path)
     if not path.is_dir():
         raise DataError(f"{path}: no such dataset directory")
+    nested = [path / s for s in SPLITS if (path / s).is_dir()]
+    if path.name in SPLITS and nested and not episode_files(path):
+        raise DataError(
+            f"{path} is a split folder holding another split ({nested[0]}): the dataset was made with "
+            f"--out pointing at a split; use {nested[0]} here, and give `tvf demos` the root next time"
+        )
     if (path / MANIFEST).is_file() or episode_files(path) or path.name in SPLITS:
         return [path]
     found = [path / s for s in SPLITS if (path / s).is_dir()]

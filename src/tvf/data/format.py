@@ -27,12 +27,12 @@ import numpy as np
 
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE, world_to_pixel, wrap_angle, yaw_to_bin
+from tvf.io import atomic_path
 
 FORMAT_VERSION = 1
 """Bumped whenever a field changes meaning or shape; readers refuse other versions."""
 SPLITS = ("train", "test")
 EPISODE_SUFFIX = ".h5"
-TMP_SUFFIX = ".tmp"
 COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True, "fletcher32": True}
 
 _STEP_FIELDS = ("pick", "place", "random")
@@ -47,11 +47,6 @@ class DataError(TvfError):
 def episode_name(seed: int) -> str:
     """File name of the episode with ``seed`` (inside its task folder)."""
     return f"{seed:06d}{EPISODE_SUFFIX}"
-
-
-def tmp_path(path: Path) -> Path:
-    """A unique temporary name beside ``path`` (hidden, so scans skip it)."""
-    return path.with_name(f".{path.name}.{os.getpid()}{TMP_SUFFIX}")
 
 
 def world_to_subpixel(xy: np.ndarray) -> np.ndarray:
@@ -218,16 +213,9 @@ def write_h5(path: Path, episode: Episode) -> int:
 
 def write_episode(path: str | Path, episode: Episode) -> int:
     """Write ``episode`` to ``path`` through a temporary file and a rename; returns the file size."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_path(path)
-    try:
-        size = write_h5(tmp, episode)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return size
+    with atomic_path(path) as tmp:
+        write_h5(tmp, episode)
+    return Path(path).stat().st_size
 
 
 class _Reader:

@@ -20,25 +20,22 @@ import os
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from tvf.data.dataset import FAILURES, scan, write_manifest
-from tvf.data.format import (
-    SPLITS,
-    TMP_SUFFIX,
-    DataError,
-    Episode,
-    episode_name,
-    read_info,
-    tmp_path,
-    write_h5,
-)
+from tvf.data.format import SPLITS, DataError, Episode, episode_name, read_info, write_h5
+from tvf.errors import TvfError
+from tvf.io import TMP_SUFFIX, commit, temp_path
+from tvf.parallel import make_pool
+from tvf.sim.env import EnvConfig, TvfEnv
+from tvf.sim.oracle import random_schedule
+from tvf.tasks import BUILTIN, Task, TaskTable
 
 N_RANDOM = 2
 """Random actions per train-split episode (facts §4)."""
@@ -57,23 +54,19 @@ def split_seeds(split: str, first_seed: int, count: int) -> list[int]:
 
 def action_schedule(task, split: str, seed: int) -> list[bool]:
     """Which steps of the episode are random: train = ``n_blocks + 2`` steps with two random ones."""
-    from tvf.sim.oracle import random_schedule
-
     if split == "test":
         return [False] * task.n_blocks
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
     return random_schedule(task.n_blocks + N_RANDOM, N_RANDOM, rng)
 
 
-def _new_env(task: str, split: str):
+def _new_env(task: Task | str, split: str):
     """A fresh environment (its own PyBullet client) for one episode; train allows the two extra steps.
 
     Fresh, not cached, so an episode cannot depend on what its worker ran before. (A simulator that
     only removed the last scene's bodies left 0.1 mm traces; ``World.clear`` now resets the simulation
     fully and a reused environment is bit-identical too, but a fresh one costs only about 0.1 s.)
     """
-    from tvf.sim.env import EnvConfig, TvfEnv
-
     return TvfEnv(task, EnvConfig(step_slack=N_RANDOM if split == "train" else 0))
 
 
@@ -108,7 +101,7 @@ def _state(env) -> tuple[np.ndarray, float]:
     return np.concatenate([pos, yaw[:, None]], axis=1).astype(np.float32), float(env.progress().fraction)
 
 
-def collect_episode(task: str, split: str, seed: int) -> tuple[Episode | None, Outcome]:
+def collect_episode(task: Task | str, split: str, seed: int) -> tuple[Episode | None, Outcome]:
     """Run one episode in this process; returns (episode, outcome) with episode None on failure."""
     env = _new_env(task, split)
     try:
@@ -118,8 +111,6 @@ def collect_episode(task: str, split: str, seed: int) -> tuple[Episode | None, O
 
 
 def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
-    from tvf.errors import TvfError
-
     task = env.task.name
     out = Outcome(task, seed, False)
     try:
@@ -176,13 +167,14 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
     return episode, out
 
 
-def episode_job(task: str, split: str, seed: int, folder: str) -> Outcome:
-    """Worker entry point: run one episode and, if it succeeded, write it to a temporary file."""
+def episode_job(task: Task, split: str, seed: int, folder: str) -> Outcome:
+    """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
+    parent renames into place once every smaller seed of the task is settled."""
     episode, out = collect_episode(task, split, seed)
     if episode is not None:
-        final = Path(folder) / task / episode_name(seed)
+        final = Path(folder) / task.name / episode_name(seed)
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = tmp_path(final)
+        tmp = temp_path(final)
         try:
             write_h5(tmp, episode)
         except BaseException:
@@ -343,7 +335,7 @@ def _advance(st: _TaskState, plan: GenerationPlan, report: GenerationReport) -> 
         if state is None:
             break
         if state == "done":  # finished by a worker in this run: move it into place
-            os.replace(st.tmp.pop(seed), plan.folder / st.name / episode_name(seed))
+            commit(st.tmp.pop(seed), plan.folder / st.name / episode_name(seed))
             st.status[seed] = "ok"
             report.generated += 1
             committed += 1
@@ -377,20 +369,19 @@ def generate(
     plan: GenerationPlan,
     workers: int = 1,
     progress: bool = True,
-    task_file: str | None = None,
+    tasks: TaskTable | None = None,
     log: Callable[[str], None] | None = None,
-    job: Callable[[str, str, int, str], Outcome] | None = None,
+    job: Callable[[Task, str, int, str], Outcome] | None = None,
     executor: Any = None,
 ) -> GenerationReport:
     """Generate (or complete) the dataset described by ``plan``; see the module docstring.
 
-    ``job`` (default :func:`episode_job`) and ``executor`` (an object with ``submit``) exist for tests;
-    an executor passed in is not shut down here.
+    ``tasks`` resolves the plan's task names (default: the built-in table; pass the one loaded with a
+    user's task file). ``job`` (default :func:`episode_job`) and ``executor`` (an object with ``submit``)
+    exist for tests; an executor passed in is not shut down here.
     """
-    from tqdm import tqdm
-
-    from tvf.evaluate.runner import init_worker
-
+    table = tasks or BUILTIN
+    resolved = {name: table.get(name) for name in plan.tasks}
     folder = plan.folder
     folder.mkdir(parents=True, exist_ok=True)
     report = GenerationReport(folder)
@@ -407,21 +398,14 @@ def generate(
         if executor is not None:
             pool = executor
         elif workers <= 1:
-            if task_file:
-                from tvf.tasks import load_task_file, register_tasks
-
-                register_tasks(load_task_file(task_file))
             pool = _InlinePool()
         else:
-            ctx = get_context("spawn")
-            pool = ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=init_worker, initargs=(task_file, 1)
-            )
+            pool = make_pool(workers)
         futures: dict[Future, _TaskState] = {}
         window = max(1, 2 * workers)
         try:
             while True:
-                _submit(states, futures, pool, plan, window, job or episode_job)
+                _submit(states, futures, pool, plan, window, job or episode_job, resolved)
                 if not futures:
                     break
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
@@ -445,7 +429,9 @@ def generate(
     return report
 
 
-def _submit(states: list[_TaskState], futures: dict, pool, plan: GenerationPlan, window: int, job) -> None:
+def _submit(
+    states: list[_TaskState], futures: dict, pool, plan: GenerationPlan, window: int, job, tasks: dict
+) -> None:  # fmt: skip
     """Fill the pool, round-robin over tasks, never running more seeds of a task than it may still need."""
     progressed = True
     while len(futures) < window and progressed:
@@ -457,7 +443,7 @@ def _submit(states: list[_TaskState], futures: dict, pool, plan: GenerationPlan,
             if st.finished or not st.pending or st.kept + unsettled + st.in_flight >= st.want:
                 continue
             seed = st.pending.popleft()
-            futures[pool.submit(job, st.name, plan.split, seed, str(plan.folder))] = st
+            futures[pool.submit(job, tasks[st.name], plan.split, seed, str(plan.folder))] = st
             st.in_flight += 1
             progressed = True
 
@@ -494,8 +480,8 @@ def generate_tasks(
     first_seed: int = 0,
     max_tries: int = 3,
     progress: bool = True,
-    task_file: str | None = None,
+    table: TaskTable | None = None,
 ) -> GenerationReport:
     """Convenience wrapper: build the plan and run :func:`generate`."""
     plan = GenerationPlan(tuple(tasks), split, episodes, Path(out), first_seed, max_tries)
-    return generate(plan, workers, progress, task_file)
+    return generate(plan, workers, progress, table)

@@ -6,70 +6,20 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from tvf.envs import EnvFactory
 from tvf.errors import TvfError
-from tvf.evaluate.runner import EpisodeResult, cached_env, run_episode, run_jobs
-from tvf.viz.images import atomic_write_bytes
-
-METHODS = ("oracle", "gctn", "tvf-small", "tvf-large")
-_POLICIES: dict = {}
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """What to evaluate: a method and its checkpoints (None: the shipped weights) and planner overrides."""
-
-    method: str
-    gctn: str | None = None
-    vf: str | None = None
-    k: int | None = None
-    depth: int | None = None
-    step_slack: int = 0
-
-    def planner(self):
-        """The planner configuration of a TVF method (preset plus the K and depth overrides)."""
-        from tvf.planning.search import planner_config
-
-        try:
-            return planner_config(self.method, self.k, self.depth)
-        except (KeyError, ValueError) as exc:
-            raise TvfError(
-                f"{exc.args[0]}; TVF methods are tvf-small and tvf-large, with K, depth >= 1"
-            ) from None
-
-
-def make_policy(spec: PolicySpec):
-    """The policy object of a spec (models are loaded here; errors name the bad flag)."""
-    from tvf.evaluate.policies import GctnPolicy, OraclePolicy, TvfPolicy
-    from tvf.train.trainer import pick_device
-
-    device = str(pick_device("auto"))  # the models run on CUDA when there is one
-    if spec.method == "oracle":
-        return OraclePolicy()
-    if spec.method == "gctn":
-        return GctnPolicy(spec.gctn, device)
-    if spec.method in METHODS:
-        return TvfPolicy(spec.gctn, spec.vf, spec.planner(), device)
-    raise TvfError(f"unknown method {spec.method!r}; choose one of {', '.join(METHODS)}")
-
-
-def cached_policy(spec: PolicySpec):
-    """This process's policy for ``spec`` (models are loaded once per process)."""
-    if spec not in _POLICIES:
-        _POLICIES[spec] = make_policy(spec)
-    return _POLICIES[spec]
-
-
-def policy_episode(task: str, seed: int, spec: PolicySpec) -> EpisodeResult:
-    """One closed-loop episode: reset to ``seed``, act until success or the horizon (plus slack)."""
-    policy = cached_policy(spec)
-    env = cached_env(task)
-    act = lambda obs, goal: policy.act(env, obs, goal)  # noqa: E731
-    return run_episode(env, seed, act, env.task.horizon + spec.step_slack)
+from tvf.evaluate.runner import episode_seeds, policy_episode
+from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_jsonl
+from tvf.parallel import run_jobs
+from tvf.policies import PolicySpec
+from tvf.sim.factory import SimEnvFactory
+from tvf.tasks import BUILTIN, Task
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -118,42 +68,54 @@ def summary_markdown(summary: dict) -> str:
 
 
 def read_results(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    out = []
-    for line in path.read_text().splitlines():
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:  # a line cut by an interruption: that episode is re-run
-            continue
-    return out
+    """The episode records of an ``episodes.jsonl`` (a line cut by an interruption is re-run)."""
+    return read_jsonl(path)
 
 
 def evaluate(
-    spec: PolicySpec, task_names: list[str], episodes: int, seed_start: int, workers: int, out: Path,
-    task_file: str | None = None,
+    spec: PolicySpec, tasks: Sequence[Task | str], episodes: int, seed_start: int, workers: int, out: Path,
+    step_slack: int = 0, envs: EnvFactory | None = None,
 ) -> dict:  # fmt: skip
-    """Evaluate on seeds ``seed_start + 2i`` (odd = test seeds by default) and write the outputs."""
+    """Evaluate ``spec`` on seeds :func:`~tvf.evaluate.runner.episode_seeds` of every task; write the outputs.
+
+    ``tasks`` are :class:`Task` values (names are looked up in the built-in table); ``envs`` makes the
+    world of each task (default: the simulator) and must pickle when ``workers`` > 1.
+    """
+    tasks = [t if isinstance(t, Task) else BUILTIN.get(t) for t in tasks]
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
-    meta = {**asdict(spec), "episodes": episodes, "seed_start": seed_start}
+    meta = {**asdict(spec), "episodes": episodes, "seed_start": seed_start, "step_slack": step_slack}
+    meta.pop("device")
     meta_path = out / "eval.json"
-    if meta_path.exists() and json.loads(meta_path.read_text()) != meta:
-        raise TvfError(f"{out} holds an evaluation with other settings ({meta_path}); choose another --out")
-    atomic_write_bytes(meta_path, json.dumps(meta, indent=1).encode())
+    if meta_path.exists():
+        changed = _changed_settings(meta_path, meta)
+        if changed:
+            raise TvfError(
+                f"{out} holds an evaluation with other {', '.join(changed)} ({meta_path}); "
+                "use the same flags or choose another --out"
+            )
+    atomic_write_json(meta_path, meta)
     done = {(r["task"], r["seed"]): r for r in read_results(log)}
-    jobs = [(t, seed_start + 2 * i) for t in task_names for i in range(episodes)]
-    todo = [(t, s, spec) for t, s in jobs if (t, s) not in done]
+    jobs = [(t, s) for t in tasks for s in episode_seeds(seed_start, episodes)]
+    todo = [(t, s, spec, step_slack, envs or SimEnvFactory()) for t, s in jobs if (t.name, s) not in done]
     if len(todo) < len(jobs):
         print(f"resuming: {len(jobs) - len(todo)} of {len(jobs)} episodes already in {log}")
-    with log.open("a") as f:
-        for result in run_jobs(policy_episode, todo, workers, f"eval {spec.method}", task_file):
-            record = result.to_dict()
-            done[(record["task"], record["seed"])] = record
-            f.write(json.dumps(record) + "\n")
-            f.flush()
-    results = [done[j] for j in jobs]
+    for result in run_jobs(policy_episode, todo, workers, f"eval {spec.method}"):
+        record = result.to_dict()
+        done[(record["task"], record["seed"])] = record
+        append_jsonl(log, record)
+    results = [done[(t.name, s)] for t, s in jobs]
     summary = summarise(results, spec.method)
-    atomic_write_bytes(out / "summary.json", json.dumps(summary, indent=1).encode())
+    atomic_write_json(out / "summary.json", summary)
     atomic_write_bytes(out / "summary.md", summary_markdown(summary).encode())
     return summary
+
+
+def _changed_settings(meta_path: Path, meta: dict) -> list[str]:
+    """The settings in which a recorded evaluation differs from ``meta`` (an unreadable record: all)."""
+    try:
+        old = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        raise TvfError(f"{meta_path} is not valid JSON; restore it or choose another --out") from None
+    old.setdefault("step_slack", meta["step_slack"])  # folders made before it was recorded here
+    return sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))

@@ -24,10 +24,11 @@ import torch
 
 from tvf.data.dataset import open_dataset
 from tvf.data.samplers import VfSampler
+from tvf.io import atomic_write_bytes
+from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.vf import encode_action, square_masks
-from tvf.tasks import get_task
-from tvf.viz.images import atomic_write_bytes
+from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
 CHANGED_MM = 5.0
@@ -64,17 +65,19 @@ def transition_metrics(
 
 
 @torch.no_grad()
-def evaluate_foresight(vf_checkpoint: str | Path, data: str | Path, out: Path, max_episodes: int = 20,
-                       figure_per_task: int = 1) -> dict:  # fmt: skip
-    """Evaluate on the test split's oracle transitions; writes metrics.json, metrics.md and figures."""
-    from tvf.evaluate.policies import load_policy_model
+def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: Path, max_episodes: int = 20,
+                       figure_per_task: int = 1, tasks: TaskTable | None = None) -> dict:  # fmt: skip
+    """Evaluate on the test split's oracle transitions; writes metrics.json, metrics.md and figures.
 
-    model = load_policy_model(vf_checkpoint, "vf")
+    ``tasks`` tells each episode's split (training or unseen task); pass the table of a --task-file.
+    """
+    table = tasks or BUILTIN
+    model = load_trained(vf_checkpoint, "vf")
     dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
     results: dict[str, dict[str, dict[str, list[float]]]] = {}
     figures: list[tuple[str, dict]] = []
     for task in dataset.tasks:
-        split = get_task(task).split
+        split = table.get(task).split
         episodes = dataset.load_all(dataset.episodes[task][:max_episodes])
         sampler = VfSampler(episodes, augment=False, identity_fraction=0.0)
         items = [sampler.item(i) for i in range(len(sampler))]

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,8 +23,12 @@ import torch
 from torch import nn
 
 from tvf.errors import TvfError
+from tvf.io import atomic_path
+from tvf.models.gctn import GCTN
 from tvf.models.presets import ModelPreset, PresetError
-from tvf.viz.images import PUBLIC_FILE_MODE
+from tvf.models.vf import VisualForesight
+from tvf.runs import resolve_checkpoint
+from tvf.weights import shipped_checkpoint
 
 FORMAT = "tvf-checkpoint"
 VERSION = 1
@@ -101,17 +104,10 @@ def save_checkpoint(
         "optimizer": optimizer.state_dict() if optimizer is not None else None,
         "extra": extra or {},
     }
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, PUBLIC_FILE_MODE)  # mkstemp makes 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, tmp.open("wb") as f:
+        torch.save(payload, f)
+        f.flush()
+        os.fsync(f.fileno())
     return path
 
 
@@ -220,15 +216,26 @@ def preset_of(ckpt: Checkpoint) -> ModelPreset:
         ) from e
 
 
+MODEL_CLASSES: dict[str, type[nn.Module]] = {cls.checkpoint_kind: cls for cls in (GCTN, VisualForesight)}
+"""Model kind -> network class (the training side of each kind lives in tvf.train.registry)."""
+
+
 def load_model(path: str | os.PathLike, expected_kind: str) -> tuple[nn.Module, Checkpoint]:
     """Rebuild a GCTN or VF model from its checkpoint (preset from the config) and load its weights."""
-    from tvf.models.gctn import GCTN
-    from tvf.models.vf import VisualForesight
-
-    builders: dict[str, type[nn.Module]] = {"gctn": GCTN, "vf": VisualForesight}
-    if expected_kind not in builders:
-        raise CheckpointError(f"unknown model kind {expected_kind!r}; choose one of {sorted(builders)}")
+    if expected_kind not in MODEL_CLASSES:
+        raise CheckpointError(f"unknown model kind {expected_kind!r}; choose one of {sorted(MODEL_CLASSES)}")
     ckpt = load_checkpoint(path, expected_kind)
-    model = builders[expected_kind](preset_of(ckpt))
+    model = MODEL_CLASSES[expected_kind](preset_of(ckpt))
     load_weights(model, ckpt)
     return model, ckpt
+
+
+def trained_checkpoint(path: str | os.PathLike | None, kind: str) -> Path:
+    """A run directory (its last checkpoint), a checkpoint file, or None for the shipped weights."""
+    return shipped_checkpoint(kind) if path is None else resolve_checkpoint(path)
+
+
+def load_trained(path: str | os.PathLike | None, kind: str, device: str | torch.device = "cpu") -> nn.Module:
+    """A model of ``kind`` (gctn | vf) in eval mode, from a run, a file or the shipped weights."""
+    model, _ = load_model(trained_checkpoint(path, kind), kind)
+    return model.eval().to(device)

@@ -16,7 +16,7 @@ the tree is rebuilt from the real observation after every step (receding horizon
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -30,7 +30,7 @@ HEIGHT_CHANNEL = RGBH_CHANNELS - 1
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Tree-search settings; the presets are the paper's TVF-Small and TVF-Large."""
+    """Tree-search settings; the method registry (tvf.policies) holds the TVF-Small and TVF-Large presets."""
 
     k: int = 3
     """Branching: place proposals per node (all share the node's argmax pick)."""
@@ -52,20 +52,6 @@ class PlannerConfig:
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
             raise ValueError(f"planner needs k >= 1 and depth >= 1, got k={self.k}, depth={self.depth}")
-
-
-PLANNERS: dict[str, PlannerConfig] = {
-    "tvf-small": PlannerConfig(k=2, depth=1),
-    "tvf-large": PlannerConfig(k=3, depth=3),
-}
-
-
-def planner_config(method: str, k: int | None = None, depth: int | None = None) -> PlannerConfig:
-    """The preset for ``method`` (tvf-small | tvf-large), with optional K and depth overrides."""
-    if method not in PLANNERS:
-        raise KeyError(f"unknown planner {method!r}; choose one of {', '.join(PLANNERS)}")
-    cfg = PLANNERS[method]
-    return replace(cfg, k=cfg.k if k is None else k, depth=cfg.depth if depth is None else depth)
 
 
 @dataclass

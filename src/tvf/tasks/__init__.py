@@ -196,38 +196,72 @@ def load_task_file(path: str | Path) -> dict[str, Task]:
     return parse_task_table(table, str(path))
 
 
-_EXTRA: dict[str, Task] = {}
-
-
 @cache
 def builtin_tasks() -> dict[str, Task]:
     return parse_task_table(_builtin_raw(), "tasks.yaml")
 
 
-def register_tasks(tasks: dict[str, Task]) -> None:
-    """Make tasks from a user's file available by name (used by ``--task-file``)."""
-    _EXTRA.update(tasks)
+@dataclass(frozen=True)
+class TaskTable:
+    """The tasks a command knows: the built-in table plus a user's task file, as one picklable value.
+
+    Commands load it once (:func:`load_tasks`) and hand it, or the :class:`Task` values it resolves,
+    to every function and worker that needs them; nothing is kept in module state.
+    """
+
+    tasks: tuple[Task, ...]
+    source: str = "tasks.yaml"
+
+    def by_name(self) -> dict[str, Task]:
+        return {t.name: t for t in self.tasks}
+
+    def names(self) -> list[str]:
+        return [t.name for t in self.tasks]
+
+    def get(self, name: str) -> Task:
+        """The task called ``name``; an unknown name is a :class:`TaskError` listing the choices."""
+        for task in self.tasks:
+            if task.name == name:
+                return task
+        hint = " (tasks from a file need --task-file)" if self.source == "tasks.yaml" else ""
+        raise TaskError(f"unknown task {name!r}{hint}; choose one of: {', '.join(self.names())}")
+
+    def resolve(self, spec: str) -> list[Task]:
+        """``train`` | ``unseen`` | ``all`` | ``NAME[,NAME...]`` -> tasks, in table order."""
+        if spec == "all":
+            return list(self.tasks)
+        if spec in SPLITS:
+            return [t for t in self.tasks if t.split == spec]
+        names = [s.strip() for s in spec.split(",") if s.strip()]
+        if not names:
+            raise TaskError("no task given; use train, unseen, all or task names separated by commas")
+        return [self.get(n) for n in names]
+
+
+def load_tasks(task_file: str | Path | None = None) -> TaskTable:
+    """The built-in tasks plus those of ``task_file`` (a file's task may replace a built-in one)."""
+    tasks = dict(builtin_tasks())
+    source = "tasks.yaml"
+    if task_file is not None:
+        tasks.update(load_task_file(task_file))
+        source = f"tasks.yaml + {task_file}"
+    return TaskTable(tuple(tasks.values()), source)
+
+
+BUILTIN = TaskTable(tuple(builtin_tasks().values()))
+"""The built-in table (a constant: user tasks never change it)."""
 
 
 def all_tasks() -> dict[str, Task]:
-    return {**builtin_tasks(), **_EXTRA}
+    """The built-in tasks by name."""
+    return BUILTIN.by_name()
 
 
 def get_task(name: str) -> Task:
-    tasks = all_tasks()
-    if name not in tasks:
-        raise TaskError(f"unknown task {name!r}; choose one of: {', '.join(tasks)}")
-    return tasks[name]
+    """A built-in task by name (user tasks: ``load_tasks(file).get(name)``)."""
+    return BUILTIN.get(name)
 
 
 def resolve_tasks(spec: str) -> list[Task]:
-    """``train`` | ``unseen`` | ``all`` | ``NAME[,NAME...]`` -> tasks, in table order."""
-    tasks = all_tasks()
-    if spec == "all":
-        return list(tasks.values())
-    if spec in SPLITS:
-        return [t for t in tasks.values() if t.split == spec]
-    names = [s.strip() for s in spec.split(",") if s.strip()]
-    if not names:
-        raise TaskError("no task given; use train, unseen, all or task names separated by commas")
-    return [get_task(n) for n in names]
+    """Built-in tasks by spec (see :meth:`TaskTable.resolve`)."""
+    return BUILTIN.resolve(spec)

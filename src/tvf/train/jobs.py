@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -11,10 +12,12 @@ import torch
 from tvf.data.dataset import demo_subset, open_dataset
 from tvf.data.format import DataError, Episode
 from tvf.data.samplers import GctnSampler, VfSampler
-from tvf.models.images import to_rgbh
+from tvf.models.gctn import GCTN
+from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.presets import get_preset
-from tvf.tasks import resolve_tasks
-from tvf.train.trainer import Task, TrainConfig, TrainError, fingerprint, schedule_config
+from tvf.models.vf import VisualForesight
+from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
+from tvf.train.trainer import TrainConfig, TrainError, TrainingJob, fingerprint, schedule_config
 
 PICK_TOLERANCE_PX = 6
 """A predicted pick within this many pixels of the label lies on the same 4 cm block (12.8 px)."""
@@ -24,7 +27,7 @@ PLACE_TOLERANCE_PX = 3
 
 def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict[str, Any]]:
     """The run's demo subset of the train split, the validation episodes and the data fingerprint."""
-    tasks = [t.name for t in resolve_tasks(cfg.tasks)]
+    tasks = [t.name for t in task_table(cfg).resolve(cfg.tasks)]
     train = open_dataset(cfg.data, split="train" if _has_splits(cfg.data) else None, tasks=tasks)
     chosen = demo_subset(train, cfg.demos, cfg.seed, tasks)
     infos = [info for t in tasks for info in chosen[t]]
@@ -47,6 +50,11 @@ def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict
     return episodes, val_eps, data
 
 
+def task_table(cfg: TrainConfig) -> TaskTable:
+    """The tasks a run may name: the built-in ones plus its --task-file's."""
+    return load_tasks(cfg.task_file)
+
+
 def _has_splits(path: Path | str) -> bool:
     return (Path(path) / "train").is_dir() or (Path(path) / "test").is_dir()
 
@@ -66,25 +74,25 @@ def _base_config(kind: str, cfg: TrainConfig, data: dict[str, Any]) -> dict[str,
             "lr": cfg.lr, "schedule": schedule_config(cfg), **data}  # fmt: skip
 
 
-def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_kwargs) -> Task:
+def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_kwargs) -> TrainingJob:
     """A job from a model, its sampler class, a batch loss and a validation metric function."""
     episodes, val_eps, data = _load_episodes(cfg)
-    sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed)
+    r = model.preset.n_rotations  # the samplers' rotation bins are the model's
+    sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r)
     validate = None
     if val_eps:
-        val_items = _fixed_items(sampler_cls(val_eps, augment=False, **val_kwargs), cfg.val_samples)
+        val_sampler = sampler_cls(val_eps, augment=False, n_rotations=r, **val_kwargs)
+        val_items = _fixed_items(val_sampler, cfg.val_samples)
 
         def validate() -> dict[str, float]:
             return metrics(model, val_items, next(model.parameters()).device)
 
-    return Task(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
+    return TrainingJob(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
                 _base_config(kind, cfg, data))  # fmt: skip
 
 
-def gctn_job(cfg: TrainConfig) -> Task:
+def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     """Training job for the goal-conditioned Transporter."""
-    from tvf.models.gctn import GCTN
-
     model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
@@ -93,13 +101,13 @@ def gctn_job(cfg: TrainConfig) -> Task:
         losses = model.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    return _job("gctn", cfg, model, GctnSampler, loss, gctn_metrics)
+    return _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics)
 
 
 @torch.no_grad()
 def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
     """Loss and greedy accuracies on fixed samples: pick on the labelled block, place within ~1 cm
-    with the rotation within one bin modulo the block's quarter-turn symmetry."""
+    with the rotation within one bin modulo the block's symmetry (a quarter turn)."""
     out: dict[str, list[float]] = {"loss": [], "pick_acc": [], "place_acc": []}
     r = model.preset.n_rotations
     for chunk in range(0, len(items), 8):
@@ -115,18 +123,16 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
         place_at_label = torch.stack([(flat % (h * w)) // w, flat % w], 1)
         rot_at_label = flat // (h * w)
         out["pick_acc"] += ((pick - b["pick"]).abs().max(1).values <= PICK_TOLERANCE_PX).float().tolist()
-        quarter = r // 4
-        drot = (rot_at_label - b["rot_bin"]) % quarter
-        rot_ok = torch.minimum(drot, quarter - drot) <= 1
+        period = round(r * BLOCK_SYMMETRY / (2 * math.pi))  # bins per symmetry period of a block
+        drot = (rot_at_label - b["rot_bin"]) % period
+        rot_ok = torch.minimum(drot, period - drot) <= 1
         close = (place_at_label - b["place"]).abs().max(1).values <= PLACE_TOLERANCE_PX
         out["place_acc"] += (close & rot_ok).float().tolist()
     return {k: float(np.mean(v)) for k, v in out.items()}
 
 
-def vf_job(cfg: TrainConfig) -> Task:
+def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
-    from tvf.models.vf import VisualForesight
-
     model = VisualForesight(get_preset(cfg.preset), seed=cfg.seed)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
@@ -135,13 +141,12 @@ def vf_job(cfg: TrainConfig) -> Task:
         value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target)
         return value, {"loss": float(value.detach())}
 
-    return _job("vf", cfg, model, VfSampler, loss, vf_metrics, identity_fraction=0.0)
+    return _job("vf", cfg, model, sampler_cls, loss, vf_metrics, identity_fraction=0.0)
 
 
 @torch.no_grad()
 def vf_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
     """Validation loss and physical errors: colour MAE in [0, 1] and height MAE in mm."""
-    from tvf.models.images import from_rgbh
 
     losses, color_err, height_err = [], [], []
     for chunk in range(0, len(items), 8):

@@ -1,12 +1,6 @@
 """One training loop for both learned models, with a run directory that can be resumed.
 
-A run directory holds::
-
-    RUN/config.json              the resolved configuration, the model preset and the data fingerprint
-    RUN/metrics.jsonl            one JSON object per logged step ({"step", "split": "train"|"val", ...})
-    RUN/tb/                      TensorBoard events (the same numbers)
-    RUN/checkpoints/step_N.pt    checkpoints (tvf.models.checkpoint format), written atomically
-    RUN/checkpoints/last.pt      the newest one; `--resume` continues from it
+The run directory's layout is :mod:`tvf.runs`'s (config.json, metrics.jsonl, tb/, checkpoints/).
 
 Every batch draws its randomness from ``numpy.random.default_rng([seed, step])``, so a resumed run
 sees exactly the batches an uninterrupted run would have seen.
@@ -26,10 +20,15 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.utils.tensorboard import SummaryWriter  # heavy, but every use of this module trains
 from tqdm import tqdm
 
 from tvf import __version__
+from tvf.device import pick_device
 from tvf.errors import TvfError
+from tvf.io import atomic_path
+from tvf.models.checkpoint import load_checkpoint, save_checkpoint
+from tvf.runs import RunDir
 
 
 class TrainError(TvfError):
@@ -48,20 +47,24 @@ class TrainConfig:
     """Demonstrations per task drawn for this run (the subset depends on --seed)."""
     preset: str = "lite"
     """Model size: paper | lite | smoke."""
-    steps: int = 2000
-    """Optimiser steps in total (a resumed run continues up to this number)."""
-    batch: int = 8
-    lr: float = 1e-4
-    """Learning rate (the peak one with --schedule cosine)."""
-    schedule: str = "constant"
+    steps: int | None = None
+    """Optimiser steps in total (a resumed run continues up to this number); default: the preset's recipe
+    (lite: GCTN 14000, VF 3000)."""
+    batch: int | None = None
+    """Batch size; default: the preset's recipe (lite: GCTN 2, VF 8)."""
+    lr: float | None = None
+    """Learning rate (the peak one with --schedule cosine); default: the preset's recipe."""
+    schedule: str | None = None
     """constant | cosine: linear warm-up over --warmup steps, then a cosine decay to 0 at --steps
-    (a cosine run cannot later be extended to more steps)."""
-    warmup: int = 0
-    """Linear warm-up steps of the cosine schedule."""
+    (a cosine run cannot later be extended to more steps); default: the preset's recipe."""
+    warmup: int | None = None
+    """Linear warm-up steps of the cosine schedule; default: the preset's recipe."""
     seed: int = 0
     """Run seed: demo subset, weight initialisation and every batch's augmentation."""
     tasks: str = "train"
     """Tasks to train on: train | unseen | all | NAME[,NAME...]."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250
@@ -71,23 +74,15 @@ class TrainConfig:
     resume: bool = False
     """Continue from RUN/checkpoints/last.pt (the config must match)."""
     device: str = "auto"
-    """auto | cpu | cuda."""
+    """auto | cpu | cuda (auto: CUDA when present)."""
     threads: int = 0
     """Torch CPU threads (0: torch's default)."""
     progress: bool = True
 
 
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise TrainError("--device cuda was asked for but no CUDA device is available; use --device cpu")
-    if name not in ("cpu", "cuda"):
-        raise TrainError(f"unknown device {name!r}; choose auto, cpu or cuda")
-    return torch.device(name)
-
-
 SCHEDULES = ("constant", "cosine")
+RESUME_MATCH = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule")
+"""What a resumed run must share with the run it continues."""
 
 
 def learning_rate(cfg: TrainConfig, step: int) -> float:
@@ -112,57 +107,8 @@ def fingerprint(items: list[Any]) -> str:
     return hashlib.sha1(json.dumps(items, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-class RunDir:
-    """Files of one training run."""
-
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
-        self.checkpoints = self.root / "checkpoints"
-        self.config_path = self.root / "config.json"
-        self.metrics_path = self.root / "metrics.jsonl"
-
-    @property
-    def last(self) -> Path:
-        return self.checkpoints / "last.pt"
-
-    def prepare(self, config: dict[str, Any], resume: bool) -> None:
-        """Create the run directory, or check that a resumed one was made with the same config."""
-        if self.config_path.exists():
-            old = json.loads(self.config_path.read_text())
-            old.setdefault("schedule", {"name": "constant"})  # runs made before schedules existed
-            if not resume:
-                raise TrainError(
-                    f"{self.root} already holds a run; pass --resume to continue it or choose another --out"
-                )
-            keys = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule")
-            changed = [k for k in keys if old.get(k) != config.get(k)]
-            if changed:
-                raise TrainError(
-                    f"{self.root} was made with different {', '.join(changed)}; resume with the same flags"
-                )
-        elif resume and self.last.exists():
-            raise TrainError(f"{self.root} has checkpoints but no config.json; it is not a tvf run")
-        self.root.mkdir(parents=True, exist_ok=True)
-        tmp = self.config_path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(config, indent=2, default=str))
-        tmp.replace(self.config_path)
-
-    def log(self, record: dict[str, Any]) -> None:
-        with self.metrics_path.open("a") as f:
-            f.write(json.dumps(record) + "\n")
-
-    def truncate_metrics(self, step: int) -> None:
-        """Drop records past ``step`` (logged after the checkpoint a resumed run restarts from)."""
-        if not self.metrics_path.exists():
-            return
-        keep = [
-            ln for ln in self.metrics_path.read_text().splitlines() if ln and json.loads(ln)["step"] <= step
-        ]
-        self.metrics_path.write_text("".join(ln + "\n" for ln in keep))
-
-
 @dataclass
-class Task:
+class TrainingJob:
     """What differs between the models: how to build them, a loss per batch and validation."""
 
     kind: str
@@ -178,12 +124,10 @@ def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch
     return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in batch.items()}
 
 
-def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
+def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
     """Run (or resume) training; returns the last validation metrics."""
-    from torch.utils.tensorboard import SummaryWriter
-
-    from tvf.models.checkpoint import load_checkpoint, save_checkpoint
-
+    if None in (cfg.steps, cfg.batch, cfg.lr, cfg.schedule, cfg.warmup):
+        raise TrainError("the training recipe is incomplete; resolve it with tvf.train.registry.with_recipe")
     if cfg.steps < 1 or cfg.batch < 1:
         raise TrainError("--steps and --batch must be at least 1")
     if cfg.schedule not in SCHEDULES:
@@ -195,7 +139,7 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
     device = pick_device(cfg.device)
     run = RunDir(cfg.out)
     config = {**job.config, "train": asdict(cfg), "version": __version__, "device": str(device)}
-    run.prepare(config, cfg.resume)
+    run.prepare(config, cfg.resume, RESUME_MATCH)
     model = job.model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     start = 0
@@ -209,7 +153,7 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
     if start >= cfg.steps:
         print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
         return {}
-    writer = SummaryWriter(str(run.root / "tb"), purge_step=start if start else None)
+    writer = SummaryWriter(str(run.tb), purge_step=start if start else None)
     amp = device.type == "cuda"
     val: dict[str, float] = {}
     bar = tqdm(
@@ -220,12 +164,11 @@ def train(cfg: TrainConfig, job: Task) -> dict[str, float]:
 
     def checkpoint(step: int) -> None:
         path = save_checkpoint(
-            run.checkpoints / f"step_{step:06d}.pt", model, optimizer, step, model.config(),
+            run.step_checkpoint(step), model, optimizer, step, model.config(),
             {"data_fingerprint": job.config.get("data_fingerprint"), "val": val},
         )  # fmt: skip
-        tmp = run.last.with_suffix(".pt.tmp")
-        shutil.copyfile(path, tmp)
-        tmp.replace(run.last)
+        with atomic_path(run.last) as tmp:
+            shutil.copyfile(path, tmp)
 
     try:
         for step in range(start + 1, cfg.steps + 1):

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from tvf.geometry import bin_to_yaw
-from tvf.viz.images import atomic_write_bytes
+from tvf.models.images import to_rgbh
 
 
 def softmax_map(logits: torch.Tensor) -> np.ndarray:
@@ -20,8 +19,6 @@ def softmax_map(logits: torch.Tensor) -> np.ndarray:
 
 def decision_maps(model, obs: dict, goal: dict) -> dict[str, np.ndarray]:
     """The greedy decision and its maps: pick probabilities (H, W), place probabilities (R, H, W)."""
-    from tvf.models.images import to_rgbh
-
     current = to_rgbh(obs["color"], obs["height"])
     target = to_rgbh(goal["color"], goal["height"])
     pick, place, rot, maps = model.act(current, target)
@@ -72,21 +69,3 @@ def gctn_figure(obs: dict, goal: dict, d: dict, n_rotations: int) -> bytes:
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
     return buf.getvalue()
-
-
-def visualise_gctn(checkpoint: str | Path | None, task: str, seed: int, out: Path) -> Path:
-    """Reset ``task`` to ``seed``, run the GCTN once and write ``out/gctn_decision.png``."""
-    from tvf.evaluate.policies import load_policy_model
-    from tvf.sim.env import TvfEnv
-
-    model = load_policy_model(checkpoint, "gctn")
-    env = TvfEnv(task)
-    try:
-        obs, info = env.reset(seed=seed)
-        d = decision_maps(model, obs, info["goal"])
-        path = out / "gctn_decision.png"
-        atomic_write_bytes(path, gctn_figure(obs, info["goal"], d, model.preset.n_rotations))
-        np.savez_compressed(out / "gctn_maps.npz", pick=d["pick_prob"], place=d["place_prob"])
-        return path
-    finally:
-        env.close()

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+from matplotlib import colormaps
+
+from tvf.io import atomic_write_bytes
 
 HEIGHT_DISPLAY_MAX = 0.14
 """Heights (m) at or above this get the top colour of the map (a 3-layer structure is 0.125 m)."""
@@ -14,8 +16,6 @@ HEIGHT_DISPLAY_MAX = 0.14
 
 def height_to_rgb(height: np.ndarray, vmax: float = HEIGHT_DISPLAY_MAX) -> np.ndarray:
     """Height map (m) -> uint8 RGB with matplotlib's viridis."""
-    from matplotlib import colormaps
-
     x = np.clip(np.asarray(height, dtype=np.float64) / vmax, 0.0, 1.0)
     return (colormaps["viridis"](x)[..., :3] * 255).astype(np.uint8)
 
@@ -38,33 +38,11 @@ def observation_panel(color: np.ndarray, height: np.ndarray, scale: int = 2) -> 
     return panel.repeat(scale, 0).repeat(scale, 1)
 
 
-PUBLIC_FILE_MODE = 0o644
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, PUBLIC_FILE_MODE)  # mkstemp makes 0600 files; outputs are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def save_png(path: str | Path, image: np.ndarray) -> None:
-    import imageio.v3 as iio
-
     atomic_write_bytes(path, iio.imwrite("<bytes>", np.asarray(image, dtype=np.uint8), extension=".png"))
 
 
 def save_gif(path: str | Path, frames: list[np.ndarray], fps: float = 1.0) -> None:
-    import imageio.v3 as iio
-
     data = iio.imwrite(
         "<bytes>", np.stack(frames).astype(np.uint8), extension=".gif", duration=1000 / fps, loop=0
     )

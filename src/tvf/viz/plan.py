@@ -3,21 +3,20 @@
 from __future__ import annotations
 
 import io
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from tvf.viz.images import atomic_write_bytes, save_gif, side_by_side
+from tvf.models.images import from_rgbh
+from tvf.viz.gctn import softmax_map
+from tvf.viz.images import save_gif, side_by_side
 
 SCALE = 2
 
 
 def imagined_colors(images: torch.Tensor) -> np.ndarray:
     """Normalised RGB-H (N, 4, H, W) -> uint8 colour images (N, H, W, 3)."""
-    from tvf.models.images import from_rgbh
-
     color, _ = from_rgbh(images.detach().cpu())
     return color.clamp(0, 255).round().to(torch.uint8).numpy()
 
@@ -47,33 +46,11 @@ def _pad_width(frames: list[np.ndarray]) -> list[np.ndarray]:
     return [np.pad(f, ((0, 0), (0, width - f.shape[1]), (0, 0)), constant_values=255) for f in frames]
 
 
-def record_episode(policy, task: str, seed: int, path: Path, fps: float = 1.0, step_slack: int = 0):
-    """Run one TVF episode and write a GIF: per step the real image, the imagined best path, the goal.
-
-    Returns the episode's :class:`tvf.evaluate.runner.EpisodeResult`.
-    """
-    from tvf.evaluate.runner import cached_env, run_episode
-
-    env = cached_env(task)
-    policy.keep_images = True
-    frames: list[np.ndarray] = []
-    policy.last_plan = None
-
-    def act(obs: dict, goal: dict):
-        action = policy.act(env, obs, goal)
-        frames.append(episode_frame(obs["color"], policy.last_plan, goal["color"]))
-        return action
-
-    last: dict = {}
-    try:
-        result = run_episode(
-            env, seed, act, env.task.horizon + step_slack, on_obs=lambda o, g: last.update(o=o, g=g)
-        )
-    finally:
-        policy.keep_images = False  # only recorded episodes keep every imagined image
-    frames.append(episode_frame(last["o"]["color"], None, last["g"]["color"]))  # the final state
+def episode_gif(path: Path, steps: list, fps: float = 1.0) -> None:
+    """A GIF of a recorded episode (:func:`tvf.evaluate.recording.record_episode`): per step the real
+    image, the imagined best path, the goal; the last frame is the final state."""
+    frames = [episode_frame(s.obs["color"], s.plan, s.goal["color"]) for s in steps]
     save_gif(path, _pad_width(frames), fps)
-    return result
 
 
 def plan_record(plan) -> dict:
@@ -111,8 +88,6 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tvf.viz.gctn import softmax_map
-
     levels = sorted({n.depth for n in plan.nodes})
     per_level = [[n for n in plan.nodes if n.depth == d] for d in levels]
     cols = max(3, min(9, max(len(p) for p in per_level)))
@@ -146,19 +121,3 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     return buf.getvalue()
-
-
-def visualise_plan(policy, task: str, seed: int, out: Path) -> Path:
-    """Plan once from ``task``'s first observation at ``seed``; write plan.png and plan.json into ``out``."""
-    from tvf.evaluate.runner import cached_env
-
-    env = cached_env(task)
-    obs, info = env.reset(seed=seed)
-    policy.keep_images = True
-    policy.act(env, obs, info["goal"])
-    plan = policy.last_plan
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "plan.png"
-    atomic_write_bytes(path, decision_figure(obs, info["goal"], plan, policy.search.n_rotations))
-    atomic_write_bytes(out / "plan.json", json.dumps(plan_record(plan), indent=1).encode())
-    return path

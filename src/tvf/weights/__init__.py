@@ -1,4 +1,4 @@
-"""Shipped `lite` weights (GCTN and VF trained by `tvf experiment` at 10 demos per task).
+"""Shipped weights (GCTN and VF trained by `tvf experiment` at 10 demos per task), named after their preset.
 
 ``provenance.json`` beside them records the command, seeds, data fingerprint and metrics. Commands load
 these by default when no ``--gctn`` / ``--vf`` is given.
@@ -12,14 +12,22 @@ from pathlib import Path
 from tvf.errors import TvfError
 
 WEIGHTS_DIR = Path(__file__).resolve().parent
-FILES = {"gctn": "gctn-lite.pt", "vf": "vf-lite.pt"}
+SHIPPED_PRESET = "lite"
+"""The preset whose weights ship with the package."""
+KINDS = ("gctn", "vf")
+PROVENANCE = "provenance.json"
 
 
-def shipped_checkpoint(kind: str) -> Path:
+def shipped_name(kind: str, preset: str = SHIPPED_PRESET) -> str:
+    """The file name of ``kind``'s weights of ``preset`` (``gctn-lite.pt``): the one naming rule."""
+    if kind not in KINDS:
+        raise TvfError(f"no shipped weights of kind {kind!r}; choose one of {', '.join(KINDS)}")
+    return f"{kind}-{preset}.pt"
+
+
+def shipped_checkpoint(kind: str, preset: str = SHIPPED_PRESET) -> Path:
     """The shipped checkpoint of ``kind`` (gctn | vf); a clear error when it is missing."""
-    if kind not in FILES:
-        raise TvfError(f"no shipped weights of kind {kind!r}; choose one of {', '.join(FILES)}")
-    path = WEIGHTS_DIR / FILES[kind]
+    path = WEIGHTS_DIR / shipped_name(kind, preset)
     if not path.exists():
         raise TvfError(
             f"shipped {kind} weights {path} are missing; "
@@ -30,5 +38,5 @@ def shipped_checkpoint(kind: str) -> Path:
 
 def provenance() -> dict:
     """The shipped weights' provenance record ({} when there is none)."""
-    path = WEIGHTS_DIR / "provenance.json"
+    path = WEIGHTS_DIR / PROVENANCE
     return json.loads(path.read_text()) if path.exists() else {}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from tvf.evaluate.closed_loop import summarise, wilson
-from tvf.evaluate.report import (
+from tvf.experiment.report import (
     PAPER_UNSEEN_10_DEMOS,
     group_average,
     ordered_methods,

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from tvf.evaluate.closed_loop import wilson
-from tvf.viz.images import atomic_write_bytes
+from tvf.io import atomic_write_bytes
+from tvf.policies import METHODS, label
+from tvf.tasks import resolve_tasks
 
-METHOD_ORDER = ("oracle", "gctn", "tvf-small", "tvf-large")
-"""Column order; other method names follow in the order given."""
-
-LABELS = {"oracle": "oracle", "gctn": "GCTN", "tvf-small": "TVF-S", "tvf-large": "TVF-L"}
+METHOD_ORDER = tuple(METHODS)
+"""Column order (the method registry's); other method names follow in the order given."""
 
 PAPER_UNSEEN_10_DEMOS = {"gctn": 0.554, "tvf-large": 0.785}
 """The paper's only published numbers (Wu et al., IROS 2022): average success on the unseen tasks with
@@ -49,15 +49,8 @@ def ordered_methods(summaries: dict[str, dict]) -> list[str]:
     return known + [m for m in summaries if m not in METHOD_ORDER]
 
 
-def label(method: str) -> str:
-    """Display name of a method."""
-    return LABELS.get(method, method)
-
-
 def task_groups(summaries: dict[str, dict]) -> dict[str, list[str]]:
     """Tasks present in any summary, split into "unseen", "train" and "other" (table order inside each)."""
-    from tvf.tasks import resolve_tasks
-
     present = list(dict.fromkeys(r["task"] for s in summaries.values() for r in s.get("tasks", [])))
     groups = {
         split: [t.name for t in resolve_tasks(split) if t.name in present] for split in ("unseen", "train")

@@ -6,9 +6,11 @@ import math
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from tvf.data.format import DataError, Episode
 from tvf.geometry import world_to_pixel
+from tvf.viz.images import height_to_rgb, save_gif, save_png, side_by_side
 
 SCALE = 2
 ORACLE_COLOURS = ((40, 220, 60), (40, 120, 255))
@@ -18,8 +20,6 @@ RANDOM_COLOURS = ((255, 170, 0), (255, 60, 200))
 
 
 def _panel(color: np.ndarray, height: np.ndarray) -> np.ndarray:
-    from tvf.viz.images import height_to_rgb, side_by_side
-
     panel = side_by_side(color, height_to_rgb(height), gap=4)
     return panel.repeat(SCALE, 0).repeat(SCALE, 1)
 
@@ -28,7 +28,6 @@ def _draw_action(
     image: np.ndarray, pick: np.ndarray, place: np.ndarray, is_random: bool, offsets
 ) -> np.ndarray:
     """Mark pick (cross) and place (circle with a tick showing the block's turn), joined by a line."""
-    from PIL import Image, ImageDraw
 
     img = Image.fromarray(image)
     draw = ImageDraw.Draw(img)
@@ -50,7 +49,6 @@ def _draw_action(
 
 
 def _caption(image: np.ndarray, text: str) -> np.ndarray:
-    from PIL import Image, ImageDraw
 
     bar = Image.new("RGB", (image.shape[1], 14), (255, 255, 255))
     ImageDraw.Draw(bar).text((4, 1), text, fill=(0, 0, 0))
@@ -76,7 +74,6 @@ def episode_frames(episode: Episode) -> list[np.ndarray]:
 
 def save_episode_view(episode: Episode, out: str | Path, fps: float = 1.0) -> Path:
     """Write the episode as a GIF (one frame per step) or a PNG (all frames stacked downwards)."""
-    from tvf.viz.images import save_gif, save_png
 
     out = Path(out)
     frames = episode_frames(episode)

@@ -20,21 +20,27 @@ import sys
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from tvf.data.generation import GenerationPlan, generate
 from tvf.errors import TvfError
-from tvf.viz.images import atomic_write_bytes
+from tvf.evaluate.closed_loop import evaluate
+from tvf.evaluate.foresight import evaluate_foresight
+from tvf.evaluate.recording import record_episode
+from tvf.experiment.report import group_average, write_report
+from tvf.io import atomic_write_bytes, atomic_write_json
+from tvf.models.checkpoint import load_model, save_checkpoint, trained_checkpoint
+from tvf.policies import METHODS, PolicySpec, make_policy
+from tvf.runs import RunDir
+from tvf.sim.factory import sim_env
+from tvf.tasks import TaskTable, load_tasks
+from tvf.train.registry import MODELS, recipe
+from tvf.train.trainer import TrainConfig, train
+from tvf.viz.plan import episode_gif
+from tvf.weights import PROVENANCE, WEIGHTS_DIR, shipped_name
 
 STAGES = ("data", "train", "eval-vf", "eval", "gifs", "report", "weights")
-
-TRAINING_DEFAULTS: dict[str, dict[str, object]] = {
-    # lite: the GCTN fits 45 minutes and the VF 7 on the 2-core CPU (docs/results.md)
-    "lite": dict(gctn_steps=14000, gctn_batch=2, gctn_lr=2e-4, gctn_schedule="cosine", gctn_warmup=500,
-                 vf_steps=3000, vf_batch=8, vf_lr=1e-4),
-    # paper: the reference's schedules (batch 1, constant learning rate)
-    "paper": dict(gctn_steps=40000, gctn_batch=1, gctn_lr=1e-4, gctn_schedule="constant", gctn_warmup=0,
-                  vf_steps=60000, vf_batch=1, vf_lr=1e-4),
-    "smoke": dict(gctn_steps=2, gctn_batch=2, gctn_lr=1e-3, gctn_schedule="constant", gctn_warmup=0,
-                  vf_steps=2, vf_batch=2, vf_lr=1e-3),
-}  # fmt: skip
+RECIPE_FLAGS = {f"{kind}_{field}": (kind, field) for kind in MODELS for field in ("steps", "batch", "lr")}
+RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", "warmup")}
+"""Experiment flags that override a field of a model kind's recipe (tvf.train.registry)."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,10 @@ class ExperimentConfig:
     """VF Adam learning rate (default: the preset's, 1e-4)."""
     workers: int = 2
     """Parallel processes for data generation and evaluation."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks and --train-tasks may name."""
+    device: str = "auto"
+    """auto | cpu | cuda: where the models train and run (auto: CUDA when present)."""
     gifs: int = 1
     """TVF-L episodes recorded as GIFs per unseen task (0: none)."""
     stages: str = ",".join(STAGES)
@@ -91,21 +101,22 @@ class ExperimentConfig:
     """After the weights stage, copy EXP/weights over the package's shipped weights (make reproduce)."""
 
     def resolved(self) -> ExperimentConfig:
-        """Fill the training schedule from the preset's defaults."""
-        if self.preset not in TRAINING_DEFAULTS:
-            raise TvfError(f"unknown preset {self.preset!r}; choose one of {', '.join(TRAINING_DEFAULTS)}")
-        defaults = TRAINING_DEFAULTS[self.preset]
-        return replace(self, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
+        """Fill the training schedules from the preset's recipes (tvf.train.registry)."""
+        return replace(self, **{
+            flag: getattr(recipe(kind, self.preset), field)
+            for flag, (kind, field) in RECIPE_FLAGS.items() if getattr(self, flag) is None
+        })  # fmt: skip
+
+    def task_table(self) -> TaskTable:
+        return load_tasks(self.task_file)
 
     @property
     def data_root(self) -> Path:
         return Path(self.data) if self.data is not None else self.out / "data"
 
     def method_list(self) -> list[str]:
-        from tvf.evaluate.closed_loop import METHODS
-
         names = [m.strip() for m in self.methods.split(",") if m.strip()]
-        bad = [m for m in names if m not in METHODS]
+        bad = [m for m in names if m not in METHODS]  # the method registry
         if bad or not names:
             raise TvfError(
                 f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
@@ -137,7 +148,9 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship")}
+    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device")}
+    if keep["task_file"] is None:
+        keep.pop("task_file")  # folders made before the flag existed resume
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
     changed = sorted(k for k in keep if recorded and recorded.get(k) != keep[k])
@@ -153,80 +166,71 @@ def _record_config(cfg: ExperimentConfig) -> None:
 
 
 def stage_data(cfg: ExperimentConfig) -> None:
-    from tvf.data.generation import GenerationPlan, generate
-    from tvf.tasks import resolve_tasks
-
-    train = tuple(t.name for t in resolve_tasks(cfg.train_tasks))
-    both = tuple(dict.fromkeys([*train, *(t.name for t in resolve_tasks(cfg.tasks))]))
+    table = cfg.task_table()
+    train = tuple(t.name for t in table.resolve(cfg.train_tasks))
+    both = tuple(dict.fromkeys([*train, *(t.name for t in table.resolve(cfg.tasks))]))
     for split, tasks, n in (("train", train, cfg.demos), ("test", both, cfg.test_demos)):
-        report = generate(GenerationPlan(tasks, split, n, cfg.data_root), cfg.workers)
+        report = generate(GenerationPlan(tasks, split, n, cfg.data_root), cfg.workers, tasks=table)
         if report.short:
             raise TvfError(f"too few successful demonstrations in {cfg.data_root / split}: {report.short}")
 
 
-def _train_config(cfg: ExperimentConfig, kind: str):
-    from tvf.train.trainer import TrainConfig
-
-    if kind == "gctn":
-        steps, batch, lr = cfg.gctn_steps, cfg.gctn_batch, cfg.gctn_lr
-        schedule = {"schedule": cfg.gctn_schedule, "warmup": cfg.gctn_warmup}
-    else:
-        steps, batch, lr, schedule = cfg.vf_steps, cfg.vf_batch, cfg.vf_lr, {}
-    every = max(1, steps // 10)
+def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
+    """The `tvf train` configuration of one model: the preset's recipe with the experiment's overrides."""
+    base = recipe(kind, cfg.preset)
+    fields = {field: getattr(cfg, flag) for flag, (k, field) in RECIPE_FLAGS.items() if k == kind}
+    steps = fields.get("steps", base.steps)
     return TrainConfig(
-        data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset, steps=steps, batch=batch,
-        lr=lr, seed=cfg.seed, tasks=cfg.train_tasks, val_every=every, checkpoint_every=every,
-        log_every=max(1, min(25, steps)), resume=True, **schedule,
+        data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset,
+        schedule=fields.get("schedule", base.schedule), warmup=fields.get("warmup", base.warmup),
+        steps=steps, batch=fields["batch"], lr=fields["lr"], seed=cfg.seed, tasks=cfg.train_tasks,
+        task_file=cfg.task_file, val_every=max(1, steps // 10), checkpoint_every=max(1, steps // 10),
+        log_every=max(1, min(25, steps)), resume=True, device=cfg.device,
     )  # fmt: skip
 
 
 def stage_train(cfg: ExperimentConfig) -> None:
-    from tvf.train.jobs import gctn_job, vf_job
-    from tvf.train.trainer import train
-
-    for kind, job in (("gctn", gctn_job), ("vf", vf_job)):
-        tc = _train_config(cfg, kind)
+    for kind, spec in MODELS.items():
+        tc = train_config(cfg, kind)
         _say(f"training {kind}: {tc.steps} steps, batch {tc.batch}, lr {tc.lr:g} ({tc.schedule}) -> {tc.out}")
-        train(tc, job(tc))
+        train(tc, spec.job(tc, spec.sampler_class))
 
 
 def stage_eval_vf(cfg: ExperimentConfig) -> None:
-    from tvf.evaluate.foresight import evaluate_foresight
+    evaluate_foresight(cfg.out / "vf", cfg.data_root, cfg.out / "eval-vf", max_episodes=cfg.test_demos,
+                       tasks=cfg.task_table())  # fmt: skip
 
-    evaluate_foresight(cfg.out / "vf", cfg.data_root, cfg.out / "eval-vf", max_episodes=cfg.test_demos)
 
-
-def method_spec(cfg: ExperimentConfig, method: str):
-    from tvf.evaluate.closed_loop import PolicySpec
-
-    return PolicySpec(method, str(cfg.out / "gctn"), str(cfg.out / "vf"), step_slack=cfg.step_slack)
+def method_spec(cfg: ExperimentConfig, method: str) -> PolicySpec:
+    """The experiment's own models under ``method``."""
+    return PolicySpec(method, str(cfg.out / "gctn"), str(cfg.out / "vf"), device=cfg.device)
 
 
 def stage_eval(cfg: ExperimentConfig) -> None:
-    from tvf.evaluate.closed_loop import evaluate
-    from tvf.tasks import resolve_tasks
-
-    names = [t.name for t in resolve_tasks(cfg.tasks)]
+    tasks = cfg.task_table().resolve(cfg.tasks)
     for method in cfg.method_list():
-        _say(f"evaluating {method}: {len(names)} tasks x {cfg.episodes} episodes")
+        _say(f"evaluating {method}: {len(tasks)} tasks x {cfg.episodes} episodes")
         spec = method_spec(cfg, method)
-        evaluate(spec, names, cfg.episodes, cfg.seed_start, cfg.workers, cfg.out / "eval" / method)
+        evaluate(spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, cfg.out / "eval" / method,
+                 cfg.step_slack)  # fmt: skip
+
+
+def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):
+    """Run one recorded episode in the simulator and write its GIF; returns the episode result."""
+    result, steps = record_episode(policy, sim_env(task), seed, task.horizon + step_slack)
+    episode_gif(path, steps)
+    return result
 
 
 def stage_gifs(cfg: ExperimentConfig) -> None:
-    from tvf.evaluate.closed_loop import make_policy
-    from tvf.tasks import resolve_tasks
-    from tvf.viz.plan import record_episode
-
     if cfg.gifs < 1:
         return
     policy = make_policy(method_spec(cfg, "tvf-large"))
-    selected = {t.name for t in resolve_tasks(cfg.tasks)}
-    for task in (t.name for t in resolve_tasks("unseen") if t.name in selected):
+    for task in (t for t in cfg.task_table().resolve(cfg.tasks) if t.split == "unseen"):
         for i in range(cfg.gifs):
-            path = cfg.out / "gifs" / f"{task}-{i}.gif"
+            path = cfg.out / "gifs" / f"{task.name}-{i}.gif"
             if not path.exists():
-                result = record_episode(policy, task, cfg.seed_start + 2 * i, path, step_slack=cfg.step_slack)
+                result = record_gif(policy, task, cfg.seed_start + 2 * i, path, cfg.step_slack)
                 _say(f"{path}: success {result.success}, progress {result.progress:.0%}")
 
 
@@ -252,32 +256,17 @@ def _meta(cfg: ExperimentConfig) -> dict:
 
 
 def stage_report(cfg: ExperimentConfig) -> tuple[Path, Path]:
-    from tvf.evaluate.report import write_report
-
     gifs = {}
     for gif in sorted((cfg.out / "gifs").glob("*-0.gif")):
         gifs[gif.name[: -len("-0.gif")]] = str(gif.relative_to(cfg.out))
     return write_report(cfg.out, _summaries(cfg), _meta(cfg), gifs)
 
 
-def _last_val(run: Path) -> dict:
-    metrics = run / "metrics.jsonl"
-    vals = (
-        [json.loads(ln) for ln in metrics.read_text().splitlines() if '"val"' in ln]
-        if metrics.exists()
-        else []
-    )
-    return vals[-1] if vals else {}
-
-
-def _group_results(summary: dict) -> dict:
+def _group_results(summary: dict, table: TaskTable) -> dict:
     """A method's average success over all tasks, the unseen ones and the training ones."""
-    from tvf.evaluate.report import group_average
-    from tvf.tasks import resolve_tasks
-
     out = {"all": summary["average"]}
     for split in ("unseen", "train"):
-        average = group_average(summary, [t.name for t in resolve_tasks(split)])
+        average = group_average(summary, [t.name for t in table.resolve(split)])
         if average is not None:
             out[split] = average
     return out
@@ -285,30 +274,29 @@ def _group_results(summary: dict) -> dict:
 
 def stage_weights(cfg: ExperimentConfig) -> Path:
     """Model-only copies of the trained checkpoints plus a provenance record, in EXP/weights."""
-    from tvf.evaluate.policies import resolve_checkpoint
-    from tvf.models.checkpoint import load_model, save_checkpoint
-    from tvf.weights import FILES
-
     out = cfg.out / "weights"
     record: dict = {"experiment": _read_recorded(cfg.out / "experiment.json"), "models": {}}
-    for kind in ("gctn", "vf"):
-        model, ckpt = load_model(resolve_checkpoint(cfg.out / kind, kind), kind)
-        run_config = json.loads((cfg.out / kind / "config.json").read_text())
-        save_checkpoint(out / FILES[kind], model, None, ckpt.step, ckpt.config, ckpt.extra)
+    for kind in MODELS:
+        run = RunDir(cfg.out / kind)
+        model, ckpt = load_model(trained_checkpoint(run.root, kind), kind)
+        run_config = run.read_config()
+        name = shipped_name(kind, cfg.preset)
+        save_checkpoint(out / name, model, None, ckpt.step, ckpt.config, ckpt.extra)
         record["models"][kind] = {
-            "file": FILES[kind], "step": ckpt.step, "preset": cfg.preset,
+            "file": name, "step": ckpt.step, "preset": cfg.preset,
             "data_fingerprint": run_config.get("data_fingerprint"), "seed": run_config.get("seed"),
             "episodes": run_config.get("episodes"), "train": run_config.get("train"),
-            "parameters": sum(p.numel() for p in model.parameters()), "validation": _last_val(cfg.out / kind),
+            "parameters": sum(p.numel() for p in model.parameters()), "validation": run.last_validation(),
         }  # fmt: skip
-    record["results"] = {method: _group_results(summary) for method, summary in _summaries(cfg).items()}
-    atomic_write_bytes(out / "provenance.json", json.dumps(record, indent=1, default=str).encode())
+    table = cfg.task_table()
+    record["results"] = {m: _group_results(summary, table) for m, summary in _summaries(cfg).items()}
+    atomic_write_json(out / PROVENANCE, record)
     return out
 
 
-def ship_weights(exp_weights: Path, target: Path) -> None:
-    """Copy an experiment's weights folder into the package's shipped weights."""
-    for name in ("gctn-lite.pt", "vf-lite.pt", "provenance.json"):
+def ship_weights(exp_weights: Path, target: Path, preset: str = "lite") -> None:
+    """Copy an experiment's weights folder (models of ``preset``) into the package's shipped weights."""
+    for name in (*(shipped_name(kind, preset) for kind in MODELS), PROVENANCE):
         if not (exp_weights / name).exists():
             raise TvfError(f"{exp_weights / name} is missing; run the experiment's weights stage first")
         atomic_write_bytes(target / name, (exp_weights / name).read_bytes())
@@ -330,8 +318,6 @@ def run_experiment(cfg: ExperimentConfig) -> Path:
         _say(f"stage {stage}")
         RUNNERS[stage](cfg)
     if cfg.ship:
-        from tvf.weights import WEIGHTS_DIR
-
-        ship_weights(cfg.out / "weights", WEIGHTS_DIR)
+        ship_weights(cfg.out / "weights", WEIGHTS_DIR, cfg.preset)
         _say(f"shipped {cfg.out / 'weights'} to {WEIGHTS_DIR}")
     return cfg.out / "report.md"

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from tvf.errors import TvfError
-from tvf.evaluate.experiment import ExperimentConfig, run_experiment, ship_weights
+from tvf.experiment.pipeline import ExperimentConfig, run_experiment, ship_weights, train_config
 from tvf.models.checkpoint import load_model
 
 
@@ -35,7 +35,7 @@ def test_every_stage_writes_its_outputs(experiment):
     assert provenance["experiment"]["preset"] == "smoke"
     assert set(provenance["results"]) == {"gctn", "tvf-large"}
     assert provenance["results"]["gctn"]["unseen"]["episodes"] == 1
-    model, ckpt = load_model(out / "weights" / "gctn-lite.pt", "gctn")
+    model, ckpt = load_model(out / "weights" / "gctn-smoke.pt", "gctn")  # named after its preset
     assert ckpt.optimizer is None and ckpt.step == 2
 
 
@@ -76,11 +76,9 @@ def test_corrupt_experiment_record_is_a_one_line_error(tmp_path):
 
 
 def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
-    from tvf.evaluate.experiment import _train_config
-
     lite = ExperimentConfig(out=tmp_path, preset="lite").resolved()
-    gctn = _train_config(lite, "gctn")
+    gctn = train_config(lite, "gctn")
     assert (gctn.steps, gctn.batch, gctn.schedule, gctn.warmup) == (14000, 2, "cosine", 500)
-    assert _train_config(lite, "vf").schedule == "constant"
+    assert train_config(lite, "vf").schedule == "constant"
     mine = ExperimentConfig(out=tmp_path, preset="lite", gctn_steps=10, gctn_schedule="constant").resolved()
     assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)

@@ -1,0 +1,104 @@
+"""`tvf eval` (closed-loop success of a method) and `tvf eval-vf` (foresight prediction quality)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from tvf.cli.common import at_least_one, check_output_dir
+from tvf.seeds import TEST_SEED_START
+
+
+def _path(p: Path | None) -> str | None:
+    return str(p) if p else None
+
+
+@dataclass(frozen=True)
+class EvalCmd:
+    """Evaluate a method in closed loop; writes episodes.jsonl, summary.json, summary.md (resumable).
+
+    Methods (the method registry): oracle (the expert, the ceiling), gctn (greedy GCTN), tvf-small (K=2,
+    depth 1) and tvf-large (K=3, depth 3). Without --gctn / --vf the shipped lite weights are used.
+    Seeds: the test range by default (never used for a choice); --seed-start 1 is the validation range.
+    Example: tvf eval --method tvf-large --tasks unseen --episodes 20 --workers 2 --out eval/tvf-large
+    """
+
+    method: str = "gctn"
+    """oracle | gctn | tvf-small | tvf-large."""
+    out: Path = Path("out/eval")
+    """Output directory (re-running the same command resumes)."""
+    gctn: Path | None = None
+    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    vf: Path | None = None
+    """VF run directory or checkpoint file (TVF methods); default: the shipped weights."""
+    k: int | None = None
+    """TVF: place proposals per node (default: the method's, 2 or 3)."""
+    depth: int | None = None
+    """TVF: search depth (default: the method's, 1 or 3)."""
+    tasks: str = "unseen"
+    """train | unseen | all | NAME[,NAME...] (see `tvf tasks`)."""
+    episodes: int = 20
+    """Episodes per task."""
+    seed_start: int = TEST_SEED_START
+    """Episode i uses seed SEED_START + 2i: 1000001 = the test range, 1 = the validation range."""
+    workers: int = 1
+    """Parallel processes (one simulator and one model copy each)."""
+    step_slack: int = 0
+    """Extra steps beyond one per block (0 = the paper's protocol)."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
+    device: str = "auto"
+    """auto | cpu | cuda: where the models run (auto: CUDA when present)."""
+
+    def spec(self):
+        from tvf.policies import PolicySpec
+
+        return PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device)
+
+    def run(self) -> None:
+        from tvf.evaluate.closed_loop import evaluate, summary_markdown
+        from tvf.policies import get_method, make_policy
+        from tvf.tasks import load_tasks
+
+        at_least_one(episodes=self.episodes, workers=self.workers)
+        tasks = load_tasks(self.task_file).resolve(self.tasks)
+        spec = self.spec()
+        if not get_method(spec.method).needs_env:
+            make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
+        check_output_dir(self.out)
+        summary = evaluate(
+            spec, tasks, self.episodes, self.seed_start, self.workers, self.out, self.step_slack
+        )
+        print(summary_markdown(summary))
+
+
+@dataclass(frozen=True)
+class EvalVfCmd:
+    """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines.
+
+    Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error).
+    Example: tvf eval-vf --vf runs/vf --data data/demos --out eval/vf
+    """
+
+    data: Path
+    """Dataset root with a test/ split, or a test split folder."""
+    vf: Path | None = None
+    """VF run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    out: Path = Path("out/eval-vf")
+    episodes: int = 20
+    """Test episodes per task (the reference used the first 20)."""
+    task_file: Path | None = None
+    """A YAML or JSON file of the extra tasks a dataset made with --task-file holds."""
+    device: str = "auto"
+    """auto | cpu | cuda (the VF runs on CPU here; the flag is checked for consistency)."""
+
+    def run(self) -> None:
+        from tvf.device import pick_device
+        from tvf.evaluate.foresight import evaluate_foresight, metrics_markdown
+        from tvf.tasks import load_tasks
+
+        at_least_one(episodes=self.episodes)
+        pick_device(self.device)
+        summary = evaluate_foresight(self.vf, self.data, check_output_dir(self.out), self.episodes,
+                                     tasks=load_tasks(self.task_file))  # fmt: skip
+        print(metrics_markdown(summary))

@@ -1,0 +1,1 @@
+"""The top of the pipeline: the experiment, its report and the quick start."""

@@ -1,0 +1,124 @@
+"""The method registry: each method's name, label, the models it loads, its planner settings, its factory.
+
+Every command, the report and the experiment read this table; adding a method is one entry here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import torch
+
+from tvf.device import pick_device
+from tvf.errors import TvfError
+from tvf.models.checkpoint import load_trained
+from tvf.planning.search import PlannerConfig
+from tvf.policies.base import Policy
+from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """What to run: a method, its checkpoints (None: the shipped weights), planner overrides, a device."""
+
+    method: str
+    gctn: str | None = None
+    vf: str | None = None
+    k: int | None = None
+    depth: int | None = None
+    device: str = "auto"
+
+
+@dataclass(frozen=True)
+class Method:
+    """One entry of the registry."""
+
+    name: str
+    label: str
+    """How reports and figures name it (the paper's names)."""
+    build: Callable[[PolicySpec, object, torch.device], Policy]
+    """``build(spec, env, device)``: the policy (``env`` is used only when ``needs_env``)."""
+    models: tuple[str, ...] = ()
+    """Model kinds it loads (their checkpoints come from the spec or the shipped weights)."""
+    planner: PlannerConfig | None = None
+    """The tree-search preset of a TVF method."""
+    needs_env: bool = False
+    """It reads the simulator (the oracle); learned methods act from images alone."""
+
+
+def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
+    if env is None:
+        raise TvfError(
+            "the oracle reads the simulator: build it with an environment (make_policy(spec, env))"
+        )
+    return OraclePolicy(env)
+
+
+def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
+    return GctnPolicy(load_trained(spec.gctn, "gctn"), device)
+
+
+def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
+    gctn, vf = load_trained(spec.gctn, "gctn"), load_trained(spec.vf, "vf")
+    return TvfPolicy(gctn, vf, planner_of(spec), device, spec.method)
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method("oracle", "oracle", _oracle, needs_env=True),
+        Method("gctn", "GCTN", _gctn, models=("gctn",)),
+        Method("tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1)),
+        Method("tvf-large", "TVF-L", _tvf, ("gctn", "vf"), PlannerConfig(k=3, depth=3)),
+    )
+}
+PLANNER_METHODS = tuple(name for name, m in METHODS.items() if m.planner is not None)
+_CACHE: dict[PolicySpec, Policy] = {}
+
+
+def get_method(name: str) -> Method:
+    """The registry entry of ``name``; an unknown name is a one-line error listing the methods."""
+    if name not in METHODS:
+        raise TvfError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
+    return METHODS[name]
+
+
+def label(name: str) -> str:
+    """The method's display name (unknown names are shown as they are)."""
+    return METHODS[name].label if name in METHODS else name
+
+
+def planner_of(spec: PolicySpec) -> PlannerConfig:
+    """The planner of a TVF spec: the method's preset with the spec's K and depth overrides."""
+    method = get_method(spec.method)
+    if method.planner is None:
+        raise TvfError(f"{spec.method} does not plan; planner methods are {', '.join(PLANNER_METHODS)}")
+    cfg = method.planner
+    try:
+        return replace(cfg, k=cfg.k if spec.k is None else spec.k,
+                       depth=cfg.depth if spec.depth is None else spec.depth)  # fmt: skip
+    except ValueError as exc:
+        raise TvfError(f"{exc.args[0]}; pass --k and --depth of at least 1") from None
+
+
+def make_policy(spec: PolicySpec, env=None) -> Policy:
+    """A new policy for ``spec`` (models are loaded here; errors name the bad flag or file)."""
+    method = get_method(spec.method)
+    if method.planner is not None:
+        planner_of(spec)  # a bad K or depth fails before any model is read
+    return method.build(spec, env, pick_device(spec.device))
+
+
+def policy_for(spec: PolicySpec, env=None) -> Policy:
+    """This process's policy for ``spec``: learned ones are loaded once per process and reused."""
+    if get_method(spec.method).needs_env:
+        return make_policy(spec, env)
+    if spec not in _CACHE:
+        _CACHE[spec] = make_policy(spec)
+    return _CACHE[spec]
+
+
+def forget_cached_policies() -> None:
+    """Drop the per-process policy cache (after the shipped weights changed, in tests)."""
+    _CACHE.clear()

@@ -1,0 +1,93 @@
+"""The model registry: per model kind its network class, sampler, training job, default recipe per preset
+and shipped file name, in one place.
+
+`tvf train KIND --preset P` trains with ``MODELS[KIND].recipes[P]`` unless a flag overrides a field, so
+`tvf train gctn --preset lite` trains exactly the shipped lite recipe; the experiment reads the same
+recipes. Adding a model kind: a class with ``checkpoint_kind`` (tvf.models.checkpoint.MODEL_CLASSES), a
+sampler (tvf.data.samplers), a job (tvf.train.jobs) and an entry here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, fields, replace
+
+from torch import nn
+
+from tvf.data.samplers import GctnSampler, VfSampler
+from tvf.errors import TvfError
+from tvf.models.checkpoint import MODEL_CLASSES
+from tvf.train.jobs import gctn_job, vf_job
+from tvf.train.trainer import TrainConfig, TrainingJob
+from tvf.weights import shipped_name
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A training schedule: optimiser steps, batch, (peak) learning rate, schedule and warm-up."""
+
+    steps: int
+    batch: int
+    lr: float
+    schedule: str = "constant"
+    warmup: int = 0
+
+
+@dataclass(frozen=True)
+class ModelKind:
+    name: str
+    model_class: type[nn.Module]
+    sampler_class: type
+    job: Callable[[TrainConfig, type], TrainingJob]
+    """``job(cfg, sampler_class)``: the model, its batches, loss and validation."""
+    recipes: dict[str, Recipe]
+    """The default recipe of each preset (lite: what the shipped weights were trained with)."""
+
+    def shipped_file(self, preset: str) -> str:
+        return shipped_name(self.name, preset)
+
+
+MODELS: dict[str, ModelKind] = {
+    "gctn": ModelKind(
+        "gctn", MODEL_CLASSES["gctn"], GctnSampler, gctn_job,
+        {
+            # lite: 40 CPU minutes on 2 cores (docs/results.md)
+            "lite": Recipe(14000, 2, 2e-4, "cosine", 500),
+            # paper: the reference's schedule (batch 1, constant learning rate)
+            "paper": Recipe(40000, 1, 1e-4),
+            "smoke": Recipe(2, 2, 1e-3),
+        },
+    ),
+    "vf": ModelKind(
+        "vf", MODEL_CLASSES["vf"], VfSampler, vf_job,
+        {"lite": Recipe(3000, 8, 1e-4), "paper": Recipe(60000, 1, 1e-4), "smoke": Recipe(2, 2, 1e-3)},
+    ),
+}  # fmt: skip
+RECIPE_FIELDS = tuple(f.name for f in fields(Recipe))
+
+
+def get_kind(name: str) -> ModelKind:
+    if name not in MODELS:
+        raise TvfError(f"unknown model kind {name!r}; choose one of {', '.join(MODELS)}")
+    return MODELS[name]
+
+
+def recipe(kind: str, preset: str) -> Recipe:
+    """The default recipe of ``kind`` at ``preset``; an unknown preset is a one-line error."""
+    recipes = get_kind(kind).recipes
+    if preset not in recipes:
+        raise TvfError(f"unknown preset {preset!r}; choose one of {', '.join(recipes)}")
+    return recipes[preset]
+
+
+def with_recipe(cfg: TrainConfig, kind: str) -> TrainConfig:
+    """``cfg`` with every recipe field left unset (None) taken from the preset's recipe."""
+    base = recipe(kind, cfg.preset)
+    return replace(cfg, **{f: getattr(base, f) for f in RECIPE_FIELDS if getattr(cfg, f) is None})
+
+
+def training_job(cfg: TrainConfig, kind: str) -> tuple[TrainConfig, TrainingJob]:
+    """The resolved config and the job of a `tvf train KIND` run."""
+    cfg = with_recipe(cfg, kind)
+    spec = get_kind(kind)
+    return cfg, spec.job(cfg, spec.sampler_class)

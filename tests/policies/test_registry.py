@@ -1,0 +1,65 @@
+"""The method registry and the policy contract."""
+
+import numpy as np
+import pytest
+
+from tvf.errors import TvfError
+from tvf.planning.search import PlannerConfig
+from tvf.policies import (
+    METHODS,
+    PLANNER_METHODS,
+    OraclePolicy,
+    Policy,
+    PolicySpec,
+    get_method,
+    label,
+    make_policy,
+    planner_of,
+    policy_for,
+)
+from tvf.sim.factory import sim_env
+from tvf.tasks import get_task
+
+
+def test_planner_presets_and_overrides():
+    assert PLANNER_METHODS == ("tvf-small", "tvf-large")
+    small, large = planner_of(PolicySpec("tvf-small")), planner_of(PolicySpec("tvf-large"))
+    assert (small.k, small.depth, large.k, large.depth) == (2, 1, 3, 3)
+    assert planner_of(PolicySpec("tvf-large", k=5, depth=2)) == PlannerConfig(k=5, depth=2)
+    with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
+        planner_of(PolicySpec("tvf-huge"))
+    with pytest.raises(TvfError, match="does not plan"):
+        planner_of(PolicySpec("gctn"))
+    with pytest.raises(TvfError, match="--k and --depth"):
+        make_policy(PolicySpec("tvf-large", k=0))
+
+
+def test_labels_and_unknown_methods():
+    assert [label(m) for m in METHODS] == ["oracle", "GCTN", "TVF-S", "TVF-L"]
+    assert label("my-method") == "my-method"
+    with pytest.raises(TvfError, match="choose one of oracle, gctn, tvf-small, tvf-large"):
+        get_method("magic")
+
+
+def test_learned_policies_act_from_images_alone():
+    env = sim_env(get_task("stack-stair"))
+    obs, info = env.reset(seed=1)
+    for name in ("gctn", "tvf-small"):
+        policy = policy_for(PolicySpec(name))
+        assert isinstance(policy, Policy) and policy.name == name
+        policy.reset()
+        action = policy.act({k: v.copy() for k, v in obs.items()}, info["goal"])  # plain arrays in
+        assert action.shape == (2, 4) and np.isfinite(action).all()
+    assert policy_for(PolicySpec("gctn")) is policy_for(PolicySpec("gctn"))  # loaded once per process
+
+
+def test_the_oracle_keeps_its_simulator_inside():
+    env = sim_env(get_task("stack-stair"))
+    obs, info = env.reset(seed=1)
+    oracle = make_policy(PolicySpec("oracle"), env)
+    assert isinstance(oracle, OraclePolicy) and isinstance(oracle, Policy)
+    action = oracle.act(obs, info["goal"])
+    env.reset(seed=1)
+    np.testing.assert_array_equal(action, env.oracle_action())
+    with pytest.raises(TvfError, match="reads the simulator"):
+        make_policy(PolicySpec("oracle"))
