@@ -121,6 +121,3 @@ class VizCmd:
 
     def run(self) -> None:
         self.command.run()
-
-
-
