@@ -332,8 +332,10 @@ class VizCmd:
 class EvalVfCmd:
     """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines.
 
-    Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error).
-    Example: tvf eval-vf --vf runs/vf --data data/demos --out eval/vf
+    Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error);
+    with --horizon H > 1 also multi-step rollout metrics (the model fed its own predictions for 1..H
+    steps) in metrics.json's `horizons` section, metrics.md and horizons.png.
+    Example: tvf eval-vf --vf runs/vf --data data/demos --out eval/vf --horizon 3
     """
 
     vf: Path
@@ -343,9 +345,13 @@ class EvalVfCmd:
     out: Path = Path("out/eval-vf")
     episodes: int = 20
     """Test episodes per task (the reference used the first 20)."""
+    horizon: int = 1
+    """Rollout steps fed the model's own output, from every step of each episode (1 = one-step only)."""
 
     def run(self) -> None:
-        from tvf.evaluate.foresight import evaluate_foresight, metrics_markdown
+        from tvf.evaluate.foresight import check_horizon, evaluate_foresight, metrics_markdown
 
-        summary = evaluate_foresight(self.vf, self.data, check_output_dir(self.out), self.episodes)
+        check_horizon(self.horizon)
+        out = check_output_dir(self.out)
+        summary = evaluate_foresight(self.vf, self.data, out, self.episodes, horizon=self.horizon)
         print(metrics_markdown(summary))
