@@ -76,8 +76,10 @@ class EvalCmd:
 class EvalVfCmd:
     """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines.
 
-    Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error).
-    Example: tvf eval-vf --vf runs/vf --data data/demos --out eval/vf
+    Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error);
+    with --horizon H > 1 also multi-step rollout metrics (the model fed its own predictions for 1..H
+    steps) in metrics.json's `horizons` section, metrics.md and horizons.png.
+    Example: tvf eval-vf --vf runs/vf --data data/demos --out eval/vf --horizon 3
     """
 
     data: Path
@@ -87,18 +89,22 @@ class EvalVfCmd:
     out: Path = Path("out/eval-vf")
     episodes: int = 20
     """Test episodes per task (the reference used the first 20)."""
+    horizon: int = 1
+    """Rollout steps fed the model's own output, from every step of each episode (1 = one-step only)."""
     task_file: Path | None = None
     """A YAML or JSON file of the extra tasks a dataset made with --task-file holds."""
     device: str = "auto"
-    """auto | cpu | cuda (the VF runs on CPU here; the flag is checked for consistency)."""
+    """auto | cpu | cuda: where the VF runs (auto: CUDA when present)."""
 
     def run(self) -> None:
         from tvf.device import pick_device
-        from tvf.evaluate.foresight import evaluate_foresight, metrics_markdown
+        from tvf.evaluate.foresight import check_horizon, evaluate_foresight, metrics_markdown
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes)
-        pick_device(self.device)
-        summary = evaluate_foresight(self.vf, self.data, check_output_dir(self.out), self.episodes,
-                                     tasks=load_tasks(self.task_file))  # fmt: skip
+        check_horizon(self.horizon)
+        device = str(pick_device(self.device))
+        out = check_output_dir(self.out)
+        summary = evaluate_foresight(self.vf, self.data, out, self.episodes, horizon=self.horizon,
+                                     tasks=load_tasks(self.task_file), device=device)  # fmt: skip
         print(metrics_markdown(summary))

@@ -3,7 +3,7 @@
 Both samplers are ``torch.utils.data.IterableDataset`` s that yield whole batches (use a DataLoader
 with ``batch_size=None``), drawn as the reference does (facts §5-6): a task uniformly, an episode of
 it uniformly, then a step uniformly. ``sample(batch_size, rng)`` draws one batch directly; ``item``
-gives a fixed, un-augmented sample for evaluation.
+gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the same for many steps.
 
 * :class:`GctnSampler`: (current, goal = last frame, pick pixel, place pixel, rotation bin) from the
   oracle steps only (states reached after a random action are included).
@@ -106,10 +106,16 @@ class _Sampler(IterableDataset):
         """The ``index``-th (episode, step) sample in a fixed order, without augmentation (batch of 1)."""
         for e, steps in enumerate(self._steps):
             if index < len(steps):
-                one = np.array([e]), np.array([steps[index]]), np.zeros(1, bool)
-                return self._build(*one, np.random.default_rng(0), False)
+                return self.batch(np.array([e]), np.array([steps[index]]))
             index -= len(steps)
         raise IndexError("sample index out of range")
+
+    def batch(self, ep: np.ndarray, step: np.ndarray) -> dict[str, torch.Tensor]:
+        """The samples of the given (episode, step) pairs in order, as :meth:`item` builds them: no
+        augmentation, no identity samples (``ep`` indexes ``self.episodes``)."""
+        ep = np.asarray(ep, np.int64)
+        step = np.asarray(step, np.int64)
+        return self._build(ep, step, np.zeros(len(ep), bool), np.random.default_rng(0), False)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         """Endless batches; each DataLoader worker draws from its own stream (seed, worker id)."""

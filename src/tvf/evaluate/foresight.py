@@ -11,6 +11,11 @@ the unseen tasks separately:
 
 Baselines: ``copy`` predicts the input unchanged; ``paste`` pastes the place mask (the rotated window
 around the pick, no network) onto the input at the place pixel.
+
+Multi-step (``horizon`` > 1, :func:`rollout_metrics`): from the real image of every step t, each method
+is fed its own output along the recorded actions of steps t, t+1, ... and scored against the real image
+k steps later, for k = 1..horizon; changed pixels are then counted against the rollout's start image
+(what matters for planning). Horizon 1 is the one-step evaluation above, number for number.
 """
 
 from __future__ import annotations
@@ -18,12 +23,14 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from tvf.data.dataset import open_dataset
 from tvf.data.samplers import VfSampler
+from tvf.errors import TvfError
 from tvf.io import atomic_write_bytes
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
@@ -64,61 +71,196 @@ def transition_metrics(
     }
 
 
-@torch.no_grad()
-def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: Path, max_episodes: int = 20,
-                       figure_per_task: int = 1, tasks: TaskTable | None = None) -> dict:  # fmt: skip
-    """Evaluate on the test split's oracle transitions; writes metrics.json, metrics.md and figures.
+class Foresight(Protocol):
+    """What the evaluation needs of a VF model (:class:`tvf.models.vf.VisualForesight` or a test stub)."""
 
-    ``tasks`` tells each episode's split (training or unseen task); pass the table of a --task-file.
+    window: int
+
+    def predict_rgbh(self, rgbh: torch.Tensor, pick, place, yaw) -> torch.Tensor: ...
+
+
+class OnDevice:
+    """A VF on ``device`` behind the CPU interface the metrics use (inputs moved there, outputs back)."""
+
+    def __init__(self, model, device: torch.device) -> None:
+        self.model, self.device, self.window = model, device, model.window
+
+    def predict_rgbh(self, rgbh: torch.Tensor, pick, place, yaw) -> torch.Tensor:
+        moved = [torch.as_tensor(x).to(self.device) for x in (rgbh, pick, place, yaw)]
+        return self.model.predict_rgbh(*moved).cpu()
+
+
+PerWindow = dict[str, dict[int, dict[str, np.ndarray]]]
+"""{method: {horizon k: {metric: one value per rollout window}}}."""
+
+
+@torch.no_grad()
+def rollout_metrics(model: Foresight, sampler: VfSampler, horizon: int) -> tuple[PerWindow, dict]:
+    """Open-loop rollouts of every method along the episodes' recorded actions, 1..``horizon`` steps.
+
+    A rollout starts from the real image of every step t of every episode; step k (1-based) feeds the
+    method its own step k-1 output with the action of step t+k-1 (as :meth:`VfSampler.batch` turns it
+    into model inputs) and compares with the real frame t+k. Horizon k thus covers every window of k
+    steps inside an episode. "Changed" pixels (``changed_height_mae_mm``) are those whose true height
+    differs from the rollout's start image by more than 5 mm. ``copy`` keeps the start image; ``paste``
+    pastes onto its own previous output. One batched model call per horizon step covers all rollouts.
+    Returns the per-window metrics and the first step's batch with the VF's prediction (``pred``).
     """
+    n_steps = np.array([e.n_steps for e in sampler.episodes], np.int64)
+    ep = np.repeat(np.arange(len(n_steps)), n_steps)
+    start = np.concatenate([np.arange(n) for n in n_steps])
+    left = n_steps[ep] - start  # steps from each window's start to the episode's end
+    out: PerWindow = {m: {} for m in METHODS}
+    active = np.arange(len(ep))
+    state: dict[str, torch.Tensor] = {}
+    origin = torch.empty(0)
+    first: dict = {}
+    for k in range(1, horizon + 1):
+        keep = left[active] >= k
+        if not keep.any():
+            break
+        active = active[keep]
+        b = sampler.batch(ep[active], start[active] + k - 1)
+        target = to_rgbh(b["next_color"], b["next_height"])
+        if k == 1:
+            origin = to_rgbh(b["current_color"], b["current_height"])
+            state = dict.fromkeys(METHODS, origin)
+        else:
+            sel = torch.from_numpy(keep)
+            origin = origin[sel]
+            state = {m: v[sel] for m, v in state.items()}
+        state = {
+            "vf": model.predict_rgbh(state["vf"], b["pick"], b["place"], b["yaw"]),
+            "copy": origin,
+            "paste": paste_baseline(state["paste"], b["pick"], b["place"], b["yaw"], model.window),
+        }
+        for method, pred in state.items():
+            out[method][k] = transition_metrics(pred, origin, target)
+        if k == 1:
+            first = {**b, "pred": state["vf"]}
+    return out, first
+
+
+def foresight_summary(
+    model: Foresight, dataset, max_episodes: int = 20, horizon: int = 1, figure_per_task: int = 1,
+    tasks: TaskTable | None = None,
+) -> tuple[dict, list[tuple[str, dict]]]:  # fmt: skip
+    """Metrics averaged per split, method and horizon: ({split: {method: {k: {metric, "transitions"}}}},
+    figure samples). ``dataset`` is a :class:`tvf.data.dataset.DemoDataset`; ``tasks`` tells each
+    task's split (training or unseen; pass the table of a --task-file)."""
     table = tasks or BUILTIN
-    model = load_trained(vf_checkpoint, "vf")
-    dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
-    results: dict[str, dict[str, dict[str, list[float]]]] = {}
+    results: dict[str, dict[str, dict[int, dict[str, list[float]]]]] = {}
     figures: list[tuple[str, dict]] = []
     for task in dataset.tasks:
         split = table.get(task).split
         episodes = dataset.load_all(dataset.episodes[task][:max_episodes])
         sampler = VfSampler(episodes, augment=False, identity_fraction=0.0)
-        items = [sampler.item(i) for i in range(len(sampler))]
-        for start in range(0, len(items), 16):
-            b = {k: torch.cat([it[k] for it in items[start : start + 16]]) for k in items[0]}
-            current = to_rgbh(b["current_color"], b["current_height"])
-            target = to_rgbh(b["next_color"], b["next_height"])
-            preds = {
-                "vf": model.predict_rgbh(current, b["pick"], b["place"], b["yaw"]),
-                "copy": current,
-                "paste": paste_baseline(current, b["pick"], b["place"], b["yaw"], model.window),
-            }
-            for method, pred in preds.items():
-                per = results.setdefault(split, {}).setdefault(method, {})
-                for k, v in transition_metrics(pred, current, target).items():
-                    per.setdefault(k, []).extend(v.tolist())
-            if start == 0:
-                for i in range(min(figure_per_task, len(items))):
-                    figures.append((task, {k: v[i] for k, v in {**b, "pred": preds["vf"]}.items()}))
+        per_window, first = rollout_metrics(model, sampler, horizon)
+        for method, by_k in per_window.items():
+            for k, metrics in by_k.items():
+                per = results.setdefault(split, {}).setdefault(method, {}).setdefault(k, {})
+                for name, v in metrics.items():
+                    per.setdefault(name, []).extend(v.tolist())
+        for i in range(min(figure_per_task, len(first["pred"]))):
+            figures.append((task, {name: v[i] for name, v in first.items()}))
     summary = {
-        split: {m: {k: float(np.mean(v)) for k, v in per.items()} | {"transitions": len(per["color_mae"])}
-                for m, per in methods.items()}
+        split: {m: {k: _mean(per) for k, per in by_k.items()} for m, by_k in methods.items()}
         for split, methods in results.items()
-    }  # fmt: skip
+    }
+    return summary, figures
+
+
+def _mean(per: dict[str, list[float]]) -> dict:
+    """Each metric's mean over the transitions, and their number."""
+    return {name: float(np.mean(v)) for name, v in per.items()} | {"transitions": len(per["color_mae"])}
+
+
+def check_horizon(horizon: int) -> None:
+    """Raise a one-line TvfError unless ``horizon`` is at least 1."""
+    if horizon < 1:
+        raise TvfError(f"--horizon must be at least 1 (1 = one-step metrics only), got {horizon}")
+
+
+def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: Path, max_episodes: int = 20,
+                       figure_per_task: int = 1, horizon: int = 1, tasks: TaskTable | None = None,
+                       device: str = "cpu") -> dict:  # fmt: skip
+    """Evaluate on the test split's transitions; writes metrics.json, metrics.md and figures.
+
+    The one-step metrics are at the top level ({split: {method: metrics}}). With ``horizon`` > 1 a
+    ``horizons`` section {split: {method: {"k": metrics}}} for k = 1..horizon (see
+    :func:`rollout_metrics`) is added, with tables in metrics.md and the plot horizons.png.
+    """
+    check_horizon(horizon)
+    model = OnDevice(load_trained(vf_checkpoint, "vf", device), torch.device(device))
+    dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
+    by_k, figures = foresight_summary(model, dataset, max_episodes, horizon, figure_per_task, tasks)
+    summary: dict = {split: {m: per[1] for m, per in methods.items()} for split, methods in by_k.items()}
+    if horizon > 1:
+        summary["horizons"] = {
+            split: {m: {str(k): v for k, v in per.items()} for m, per in methods.items()}
+            for split, methods in by_k.items()
+        }
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out / "metrics.json", json.dumps(summary, indent=1).encode())
     atomic_write_bytes(out / "metrics.md", metrics_markdown(summary).encode())
     atomic_write_bytes(out / "predictions.png", figure_grid(figures))
+    if horizon > 1:
+        atomic_write_bytes(out / "horizons.png", horizon_plot(summary["horizons"]))
     return summary
 
 
+KEYS = ("paper_color_l1", "paper_height_l1", "color_mae", "height_mae_mm", "changed_height_mae_mm")
+
+
 def metrics_markdown(summary: dict) -> str:
-    keys = ["paper_color_l1", "paper_height_l1", "color_mae", "height_mae_mm", "changed_height_mae_mm"]
+    """One table per split (one-step metrics), then, with a ``horizons`` section, a table per split with
+    a row per method and horizon."""
+    keys = list(KEYS)
     lines = ["# Visual foresight: prediction quality", ""]
     for split, methods in summary.items():
+        if split == "horizons":
+            continue
         lines += [f"## {split} tasks", "", "| method | transitions | " + " | ".join(keys) + " |",
                   "|---" * (len(keys) + 2) + "|"]  # fmt: skip
         for m, v in methods.items():
             lines.append(f"| {m} | {v['transitions']} | " + " | ".join(f"{v[k]:.4f}" for k in keys) + " |")
         lines.append("")
+    for split, methods in summary.get("horizons", {}).items():
+        header = "| method | horizon | transitions | " + " | ".join(keys) + " |"
+        lines += [f"## {split} tasks: rollouts fed their own predictions", "", header]
+        lines.append("|---" * (len(keys) + 3) + "|")
+        for m, per in methods.items():
+            for h, v in per.items():
+                values = " | ".join(f"{v[k]:.4f}" for k in keys)
+                lines.append(f"| {m} | {h} | {v['transitions']} | {values} |")
+        lines.append("")
     return "\n".join(lines)
+
+
+def horizon_plot(horizons: dict) -> bytes:
+    """Changed-pixel height error (mm) against the horizon, a line per method, a panel per split (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = max(len(horizons), 1)
+    fig, axes = plt.subplots(1, n, figsize=(4.5 * n, 3.5), squeeze=False)
+    for ax, (split, methods) in zip(axes[0], horizons.items(), strict=False):
+        for m, per in methods.items():
+            ks = [int(k) for k in per]
+            ax.plot(ks, [per[k]["changed_height_mae_mm"] for k in per], "o-", label=m)
+            ax.set_xticks(ks)
+        ax.set_title(f"{split} tasks", fontsize=10)
+        ax.set_xlabel("horizon (steps fed back)")
+        ax.set_ylabel("height MAE on changed pixels (mm)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80)
+    plt.close(fig)
+    return buf.getvalue()
 
 
 def figure_grid(samples: list[tuple[str, dict]]) -> bytes:
