@@ -232,3 +232,26 @@ def test_fixed_batch_overfits(generator: torch.Generator) -> None:
         place.append(loss["place"].item())
     assert pick[-1] < 0.5 * pick[0]
     assert float(np.median(place[-10:])) < 0.5 * place[0]
+
+
+@pytest.mark.parametrize("preset", [SMOKE, QUARTER])
+def test_place_maps_at_several_picks_equal_one_place_map_per_pick(generator: torch.Generator, preset):
+    model = GCTN(preset).eval()
+    b, p = 3, 2  # more than INFERENCE_CHUNK states: chunked
+    current = torch.randn(b, 4, 160, 160, generator=generator)
+    goal = torch.randn(1, 4, 160, 160, generator=generator)
+    picks = torch.randint(0, 160, (b, p, 2), generator=generator)
+    with torch.no_grad():
+        features = model.goal_features(goal)
+        torch.testing.assert_close(features, model.transport.goal_features(goal))
+        many = model.place_maps(current, None, picks, features)
+        for j in range(p):
+            torch.testing.assert_close(many[:, j], model.place_map(current, goal, picks[:, j]))
+    assert many.shape == (b, p, preset.place_rotations, 160, 160)
+    with pytest.raises(ValueError, match="picks of shape"):
+        model.place_maps(current, goal, picks[0])
+    channels = torch.arange(preset.place_rotations)
+    assert model.rotation_bins(channels).tolist() == channel_bins(36, preset.symmetry).tolist()
+    assert (
+        model.rotation_bins(np.array([2, 0])).tolist() == channel_bins(36, preset.symmetry)[[2, 0]].tolist()
+    )

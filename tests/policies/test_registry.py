@@ -30,8 +30,13 @@ def test_planner_presets_and_overrides():
         planner_of(PolicySpec("tvf-huge"))
     with pytest.raises(TvfError, match="does not plan"):
         planner_of(PolicySpec("gctn"))
-    with pytest.raises(TvfError, match="--k and --depth"):
+    with pytest.raises(TvfError, match="k >= 1 .*--k, --depth"):
         make_policy(PolicySpec("tvf-large", k=0))
+    nms = planner_of(PolicySpec("tvf-large", proposals="nms", pick_branches=2))
+    assert (nms.proposals, nms.pick_branches, nms.k) == ("nms", 2, 3)
+    assert (large.proposals, large.pick_branches) == ("kmeans", 1)  # the presets keep the paper's rule
+    with pytest.raises(TvfError, match="unknown proposal rule"):
+        planner_of(PolicySpec("tvf-small", proposals="topk"))
 
 
 def test_labels_and_unknown_methods():

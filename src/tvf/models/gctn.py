@@ -260,16 +260,34 @@ class Transport(nn.Module):
 
         R = ``preset.place_rotations``; channel r turns the object by ``self.yaws[r]``.
         """
+        return self.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
+
+    def place_maps(
+        self,
+        current: torch.Tensor,
+        goal: torch.Tensor | None,
+        picks: torch.Tensor,
+        goal_features: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Place logits (B, P, R, H, W) at P picks per state (``picks`` (B, P, 2)).
+
+        The key and query FCNs run once per state; only the rotated crops and the correlation are
+        repeated per pick, so P picks cost much less than P calls of :meth:`forward`.
+        """
         if goal_features is None:
             goal_features = self.goal_features(_require(goal))
-        b = current.shape[0]
+        b, p = picks.shape[:2]
         goal_features = _match_batch(goal_features, b)
         keys = goal_features * self._features(self.key, current)
         queries = goal_features * self._features(self.query, current)
-        kernels = rotated_crops(queries, pick, self.pad, self.crop, self.yaws)
+        if p > 1:
+            queries = queries.repeat_interleave(p, dim=0)  # row b * P + j: state b at its j-th pick
+        kernels = rotated_crops(queries, picks.reshape(b * p, 2), self.pad, self.crop, self.yaws)
+        r = kernels.shape[1]
+        kernels = kernels.reshape(b, p * r, *kernels.shape[2:])
         logits = self.correlate(keys.contiguous(), kernels)
         n = self.image_size
-        return logits[..., :n, :n] / float(self.crop**2)
+        return logits[..., :n, :n].reshape(b, p, r, n, n) / float(self.crop**2)
 
 
 def _flat_index(pixels: torch.Tensor, width: int) -> torch.Tensor:
@@ -350,6 +368,15 @@ class GCTN(nn.Module):
             ]
         )
 
+    def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
+        """The transport's goal feature maps; compute them once when one goal serves many states."""
+        return self.transport.goal_features(goal)
+
+    def rotation_bins(self, channels: torch.Tensor) -> torch.Tensor:
+        """The rotation bin of a full turn (of ``preset.n_rotations``) of each place-map channel."""
+        index = torch.as_tensor(channels, dtype=torch.int64, device=self.channel_bins.device)
+        return self.channel_bins[index]
+
     def place_map(
         self,
         current: torch.Tensor,
@@ -363,18 +390,39 @@ class GCTN(nn.Module):
         """
         b = current.shape[0]
         pick = as_pixels(pick_pixels, b, current.shape[-2:]).to(current.device)
+        return self.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
+
+    def place_maps(
+        self,
+        current: torch.Tensor,
+        goal: torch.Tensor | None,
+        picks: torch.Tensor,
+        goal_features: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Place logits (B, P, R, H, W) at P picks per state (``picks`` (B, P, 2) int pixels).
+
+        Each state's key and query maps are computed once for all its picks. Chunked like
+        :meth:`place_map` (chunks of :data:`INFERENCE_CHUNK` states).
+        """
+        b = current.shape[0]
+        picks = torch.as_tensor(picks)
+        if picks.dim() != 3 or picks.shape[0] != b:
+            raise ValueError(f"expected picks of shape ({b}, P, 2), got {tuple(picks.shape)}")
+        p = picks.shape[1]
+        picks = as_pixels(picks.reshape(b * p, -1), b * p, current.shape[-2:]).reshape(b, p, 2)
+        picks = picks.to(current.device)
         if torch.is_grad_enabled() or b <= INFERENCE_CHUNK:
-            return self.transport(current, goal, pick, goal_features)
+            return self.transport.place_maps(current, goal, picks, goal_features)
         if goal_features is None and _require(goal).shape[0] == 1:
             goal_features = self.transport.goal_features(goal)  # one shared goal: encode it once
         out = []
         for lo in range(0, b, INFERENCE_CHUNK):
             hi = lo + INFERENCE_CHUNK
             if goal_features is None:
-                out.append(self.transport(current[lo:hi], goal[lo:hi], pick[lo:hi]))
+                out.append(self.transport.place_maps(current[lo:hi], goal[lo:hi], picks[lo:hi]))
             else:
                 features = goal_features if goal_features.shape[0] == 1 else goal_features[lo:hi]
-                out.append(self.transport(current[lo:hi], None, pick[lo:hi], features))
+                out.append(self.transport.place_maps(current[lo:hi], None, picks[lo:hi], features))
         return torch.cat(out)
 
     def forward(

@@ -1,7 +1,8 @@
 """TVF tree search: expand GCTN proposals through imagined (visual-foresight) images, level by level.
 
-At every level all frontier states go through **one** batched GCTN call (pick argmax, then the place
-map at that pick) and all their children through **one** batched VF call. A node at depth ``d``
+At every level all frontier states go through **one** batched GCTN call (pick logits, then the place
+maps at each state's picks: its argmax, plus the next distinct picks with ``pick_branches`` > 1) and
+all their children through **one** batched VF call. A node at depth ``d``
 (1-based) scores ``gamma**(d-1) * (C - D(o, o_goal))`` with
 
     D(o, o_goal) = sum over pixels |H_n(o) - H_n(o_goal)| / (160 * 160 * 4),
@@ -23,7 +24,7 @@ import torch
 
 from tvf.models.gctn import argmax_pixels
 from tvf.models.images import RGBH_CHANNELS
-from tvf.planning.proposals import Proposals, place_proposals
+from tvf.planning.proposals import BLOCK_PIXELS, RULES, Proposals, node_proposals, pick_peaks
 
 HEIGHT_CHANNEL = RGBH_CHANNELS - 1
 
@@ -33,13 +34,13 @@ class PlannerConfig:
     """Tree-search settings; the method registry (tvf.policies) holds the TVF-Small and TVF-Large presets."""
 
     k: int = 3
-    """Branching: place proposals per node (all share the node's argmax pick)."""
+    """Branching: proposals (children) per node."""
     depth: int = 3
     """Levels of imagined actions."""
     alpha: float = 0.01
     """Keep pixels whose place probability is at least alpha times the best."""
     top_n: int = 100
-    """At most this many candidate pixels go into K-means."""
+    """At most this many candidate pixels go into K-means (``kmeans`` rule only)."""
     gamma: float = 0.99
     """Discount per level."""
     bonus: float = 1.0
@@ -48,10 +49,34 @@ class PlannerConfig:
     """K-means seed (each clustering restarts from it, so a decision is a pure function of its images)."""
     batched: bool = True
     """One model call per level (False: one node at a time, for benchmarks; same results)."""
+    proposals: str = "kmeans"
+    """Place proposal rule: ``kmeans`` (the paper) or ``nms`` (non-maximum suppression)."""
+    nms_radius: float = BLOCK_PIXELS
+    """Pixels: NMS places (``nms``) and branched picks (``pick_branches`` > 1) are at least this far
+    apart; the default is one block."""
+    nms_rotation: float | None = None
+    """Degrees: with ``nms``, a place nearer than ``nms_radius`` to an accepted one still counts as
+    distinct when its turn differs by more than this (modulo the symmetry period); None: never."""
+    pick_branches: int = 1
+    """Distinct picks per node (1: the argmax pick only, the paper). Each of the P best picks gives its
+    best place; the other ``k - P`` proposals are the rule's further places at the best pick."""
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
             raise ValueError(f"planner needs k >= 1 and depth >= 1, got k={self.k}, depth={self.depth}")
+        if self.proposals not in RULES:
+            raise ValueError(f"unknown proposal rule {self.proposals!r}; choose one of {', '.join(RULES)}")
+        if not 1 <= self.pick_branches <= self.k:
+            raise ValueError(
+                f"pick_branches must be between 1 and k = {self.k} (the picks share the K proposals), "
+                f"got {self.pick_branches}"
+            )
+        if not (math.isfinite(self.nms_radius) and self.nms_radius > 0):
+            raise ValueError(f"nms_radius must be a positive number of pixels, got {self.nms_radius}")
+        if self.nms_rotation is not None and not 0 <= self.nms_rotation < 180:
+            raise ValueError(f"nms_rotation must be None or degrees in [0, 180), got {self.nms_rotation}")
+        if not 0 < self.alpha <= 1:
+            raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
 
 
 @dataclass
@@ -79,8 +104,9 @@ class Plan:
     pick_logits: torch.Tensor | None = None
     """The root's pick logits (H, W)."""
     place_logits: torch.Tensor | None = None
-    """The root's place logits (R, H, W) at its pick."""
+    """The root's place logits (R, H, W) at its best (argmax) pick."""
     root_proposals: Proposals | None = None
+    """The root's proposals (with their picks), in the order of the depth-1 nodes."""
     counts: dict = field(default_factory=dict)
     """Model calls and evaluated states: gctn_calls, vf_calls, gctn_states, vf_states."""
 
@@ -117,17 +143,36 @@ class TreeSearch:
         self.gctn, self.vf, self.config = gctn, vf, config
         self.n_rotations = gctn.preset.n_rotations
 
+    def _picks(self, pick_logits: torch.Tensor) -> list[np.ndarray]:
+        """Each state's picks (n_i, 2), best first: the argmax, then further distinct picks."""
+        cfg = self.config
+        if cfg.pick_branches == 1:
+            return [p[None] for p in argmax_pixels(pick_logits).cpu().numpy()]
+        return [pick_peaks(x, cfg.pick_branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
+
     @torch.no_grad()
     def _propose(self, states: torch.Tensor, goal: torch.Tensor, goal_features: torch.Tensor):
-        """GCTN on every state: argmax picks (N, 2), place logits (N, R, H, W), pick logits (N, H, W)."""
+        """GCTN on every state: its picks (list of (n_i, 2)), its place logits at them (list of
+        (n_i, R, H, W)) and the pick logits (N, H, W)."""
         picks, places, pick_logits = [], [], []
         for part in _chunks(states.shape[0], self.config.batched):
             logits = self.gctn.pick_logits(states[part], goal)
-            pick = argmax_pixels(logits)
-            places.append(self.gctn.place_map(states[part], None, pick, goal_features))
-            picks.append(pick)
+            sets = self._picks(logits)
+            width = max(len(s) for s in sets)  # states with fewer picks repeat their best one
+            padded = np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
+            maps = self.gctn.place_maps(states[part], None, torch.as_tensor(padded), goal_features)
+            places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]
+            picks += sets
             pick_logits.append(logits)
-        return torch.cat(picks), torch.cat(places), torch.cat(pick_logits)
+        return picks, places, torch.cat(pick_logits)
+
+    def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor) -> Proposals:
+        cfg = self.config
+        period = place_logits.shape[1] * 360.0 / self.n_rotations  # degrees the channels cover
+        return node_proposals(
+            place_logits, picks, cfg.k, rule=cfg.proposals, alpha=cfg.alpha, top_n=cfg.top_n,
+            seed=cfg.seed, radius=cfg.nms_radius, rotation_tolerance=cfg.nms_rotation, period=period,
+        )  # fmt: skip
 
     @torch.no_grad()
     def _imagine(self, states: torch.Tensor, picks, places, yaws) -> torch.Tensor:
@@ -140,22 +185,22 @@ class TreeSearch:
         cfg = self.config
         if not (torch.isfinite(current).all() and torch.isfinite(goal).all()):
             raise ValueError("planner input contains NaN or infinity")
-        goal_features = self.gctn.transport.goal_features(goal)
+        goal_features = self.gctn.goal_features(goal)
         states, ids = current, [-1]  # frontier images and their node indices (-1: the real state)
         nodes: list[Node] = []
         images: list[torch.Tensor] = []
         plan = Plan(nodes, -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0))
         for level in range(1, cfg.depth + 1):
             picks, place_logits, pick_logits = self._propose(states, goal, goal_features)
-            proposals = place_proposals(place_logits, cfg.k, cfg.alpha, cfg.top_n, cfg.seed)
+            proposals = [self._proposals(p, m) for p, m in zip(picks, place_logits, strict=True)]
             if level == 1:
-                plan.pick_logits, plan.place_logits = pick_logits[0], place_logits[0]
+                plan.pick_logits, plan.place_logits = pick_logits[0], place_logits[0][0]
                 plan.root_proposals = proposals[0]
             parent_rows = [i for i, p in enumerate(proposals) for _ in range(len(p))]
-            child_picks = picks.cpu()[parent_rows]
+            child_picks = torch.as_tensor(np.concatenate([p.picks for p in proposals]))
             child_places = torch.as_tensor(np.concatenate([p.places for p in proposals]))
-            channels = np.concatenate([p.rotations for p in proposals])
-            rotations = self.gctn.channel_bins.cpu().numpy()[channels]  # bins of a full turn
+            channels = torch.as_tensor(np.concatenate([p.rotations for p in proposals]))
+            rotations = self.gctn.rotation_bins(channels).cpu().numpy()  # bins of a full turn
             yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
             children = self._imagine(states[parent_rows], child_picks, child_places, yaws)
             distances = height_distance(children, goal)

@@ -28,6 +28,16 @@ class PolicySpec:
     k: int | None = None
     depth: int | None = None
     device: str = "auto"
+    proposals: str | None = None
+    """Proposal rule override (kmeans | nms; docs/planner.md)."""
+    pick_branches: int | None = None
+    """Distinct picks a node branches over (1 = the argmax pick only)."""
+
+    def planner_overrides(self) -> dict:
+        """The planner fields this spec sets (None: the method's preset)."""
+        fields = {"k": self.k, "depth": self.depth, "proposals": self.proposals,
+                  "pick_branches": self.pick_branches}  # fmt: skip
+        return {name: value for name, value in fields.items() if value is not None}
 
 
 @dataclass(frozen=True)
@@ -90,16 +100,16 @@ def label(name: str) -> str:
 
 
 def planner_of(spec: PolicySpec) -> PlannerConfig:
-    """The planner of a TVF spec: the method's preset with the spec's K and depth overrides."""
+    """The planner of a TVF spec: the method's preset with the spec's overrides (K, depth, proposals)."""
     method = get_method(spec.method)
     if method.planner is None:
         raise TvfError(f"{spec.method} does not plan; planner methods are {', '.join(PLANNER_METHODS)}")
-    cfg = method.planner
     try:
-        return replace(cfg, k=cfg.k if spec.k is None else spec.k,
-                       depth=cfg.depth if spec.depth is None else spec.depth)  # fmt: skip
+        return replace(method.planner, **spec.planner_overrides())
     except ValueError as exc:
-        raise TvfError(f"{exc.args[0]}; pass --k and --depth of at least 1") from None
+        raise TvfError(
+            f"{exc.args[0]}; fix the planner flags (--k, --depth, --proposals, --pick-branches)"
+        ) from None
 
 
 def make_policy(spec: PolicySpec, env=None) -> Policy:

@@ -100,9 +100,11 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     _show(axes[0, 1], goal["color"], "goal")
     _show(axes[0, 2], obs["color"], "place map (max over rotations)")
     axes[0, 2].imshow(place, cmap="inferno", alpha=0.6)
-    pick = plan.nodes[0].pick
-    axes[0, 2].plot(pick[1], pick[0], "o", ms=8, mfc="none", mec="white", mew=2)
-    for i, (r, c) in enumerate(plan.root_proposals.places):
+    proposals = plan.root_proposals
+    picks = [plan.nodes[0].pick] if proposals.picks is None else np.unique(proposals.picks, axis=0)
+    for pick in picks:  # the argmax pick, and the branched picks (the map is the argmax pick's)
+        axes[0, 2].plot(pick[1], pick[0], "o", ms=8, mfc="none", mec="white", mew=2)
+    for i, (r, c) in enumerate(proposals.places):
         axes[0, 2].plot(c, r, "s", ms=9, mfc="none", mec="cyan", mew=2)
         axes[0, 2].annotate(str(i + 1), (c + 5, r - 5), color="cyan", fontsize=8)
     on_path = {n.index for n in plan.path}
