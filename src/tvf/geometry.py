@@ -160,7 +160,7 @@ def se2_output_to_input(
     points written ``(col, row)``; the returned matrices map *output* pixels back to *input*
     pixels (what a sampler needs). ``center`` and ``shift`` are ``(N, 2)`` as (row, col).
     """
-    import torch
+    import torch  # lazy: the geometry contract serves torch-free code (the simulator) too
 
     yaw = torch.as_tensor(yaw, dtype=torch.float32)
     n = yaw.shape[0]
@@ -177,7 +177,7 @@ def warp_images(images: torch.Tensor, out_to_in: torch.Tensor, mode: str = "near
 
     Pixels sampled from outside the input are zero.
     """
-    import torch
+    import torch  # lazy, as above
     import torch.nn.functional as F
 
     n, _, h, w = images.shape

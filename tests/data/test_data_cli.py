@@ -87,3 +87,10 @@ def test_missing_dataset(tmp_path, capsys):
     assert "no such episode file" in _fails(
         ["data", "show", str(tmp_path / "x.h5"), "--out", str(tmp_path / "x.gif")], capsys
     )
+
+
+def test_a_nested_split_is_named(copy, tmp_path, capsys):
+    nested = tmp_path / "made" / "train"
+    shutil.copytree(copy / "train", nested / "train")  # `tvf demos --out made/train` wrote made/train/train
+    line = _fails(["data", "info", str(nested)], capsys)
+    assert "holding another split" in line and str(nested / "train") in line

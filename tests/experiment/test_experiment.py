@@ -5,7 +5,8 @@ import json
 import pytest
 
 from tvf.errors import TvfError
-from tvf.experiment.pipeline import ExperimentConfig, run_experiment, ship_weights, train_config
+from tvf.experiment.config import ExperimentConfig
+from tvf.experiment.pipeline import run_experiment, ship_weights, train_config
 from tvf.models.checkpoint import load_model
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tvf.experiment.pipeline import ExperimentConfig, run_experiment
+from tvf.experiment.config import ExperimentConfig
 
 
 @dataclass(frozen=True)
@@ -17,5 +17,7 @@ class ExperimentCmd(ExperimentConfig):
     """
 
     def run(self) -> None:
+        from tvf.experiment.pipeline import run_experiment
+
         report = run_experiment(self)
         print(f"done: {report} and {report.with_suffix('.html')}")

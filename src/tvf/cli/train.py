@@ -7,8 +7,7 @@ from typing import Annotated
 
 import tyro
 
-from tvf.train.registry import training_job
-from tvf.train.trainer import TrainConfig, train
+from tvf.train.trainer import TrainConfig
 
 
 @dataclass(frozen=True)
@@ -37,10 +36,14 @@ class TrainVf(TrainConfig):
 
 
 def run_training(cfg: TrainConfig, kind: str) -> None:
+    from tvf.runs import RunDir
+    from tvf.train.registry import training_job  # lazy: it imports the data pipeline and the simulator
+    from tvf.train.trainer import train
+
     resolved, job = training_job(cfg, kind)
     val = train(resolved, job)
     shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"
-    print(f"done: {cfg.out}/checkpoints/last.pt ({shown})")
+    print(f"done: {RunDir(cfg.out).last} ({shown})")
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from tvf import __version__
 from tvf.data.format import (
     EPISODE_SUFFIX,
     FORMAT_VERSION,
@@ -107,8 +108,6 @@ class DemoDataset:
 
 
 def build_manifest(dataset: DemoDataset, failures: int = 0) -> dict[str, Any]:
-    from tvf import __version__
-
     return {
         "format_version": FORMAT_VERSION,
         "tvf_version": __version__,

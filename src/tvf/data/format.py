@@ -23,8 +23,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 
+from tvf import __version__
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE, world_to_pixel, wrap_angle, yaw_to_bin
 from tvf.io import atomic_path
@@ -176,10 +178,6 @@ def _json_default(value: Any) -> Any:
 
 def write_h5(path: Path, episode: Episode) -> int:
     """Write ``episode`` to ``path`` (not atomic; see :func:`write_episode`); returns the file size."""
-    import h5py
-
-    from tvf import __version__
-
     episode.validate()
     with h5py.File(path, "w") as f:
         for name in ("color", "height"):
@@ -226,8 +224,6 @@ class _Reader:
         self.file = None
 
     def __enter__(self):
-        import h5py
-
         if not self.path.is_file():
             raise DataError(f"{self.path}: no such episode file")
         try:
@@ -323,8 +319,6 @@ class LazyFrames:
         return self.shape[0]
 
     def _file(self):
-        import h5py
-
         key = (os.getpid(), self.path)
         f = LazyFrames._open.get(key)
         if f is None:

@@ -239,7 +239,7 @@ def metrics_markdown(summary: dict) -> str:
 
 def horizon_plot(horizons: dict) -> bytes:
     """Changed-pixel height error (mm) against the horizon, a line per method, a panel per split (PNG)."""
-    import matplotlib
+    import matplotlib  # pyplot is imported only after the headless backend is chosen
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -265,7 +265,7 @@ def horizon_plot(horizons: dict) -> bytes:
 
 def figure_grid(samples: list[tuple[str, dict]]) -> bytes:
     """Rows of: input, action (place mask), prediction, truth, height error; as PNG bytes."""
-    import matplotlib
+    import matplotlib  # pyplot is imported only after the headless backend is chosen
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -12,6 +12,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from tvf.evaluate.closed_loop import wilson
 from tvf.io import atomic_write_bytes
@@ -317,8 +319,6 @@ def paper_marks(ax, methods: list[str], width: float) -> None:
 def success_chart(summaries: dict[str, dict], path: Path) -> Path:
     """Grouped bar chart of success per method (Wilson 95% error bars) with the paper's unseen averages
     as labelled markers; written atomically as a PNG at ``path``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
     methods = ordered_methods(summaries)
     groups = chart_groups(summaries)

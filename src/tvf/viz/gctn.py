@@ -43,7 +43,7 @@ def _draw_action(ax, pick: np.ndarray, place: np.ndarray | None, yaw: float | No
 
 def gctn_figure(obs: dict, goal: dict, d: dict, n_rotations: int) -> bytes:
     """A PNG: current image with the pick map, the place map (max over rotations), the goal."""
-    import matplotlib
+    import matplotlib  # pyplot is imported only after the headless backend is chosen
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

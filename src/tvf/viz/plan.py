@@ -83,7 +83,7 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
 
     The best path's nodes are framed in blue; the best node's title is marked with a star.
     """
-    import matplotlib
+    import matplotlib  # pyplot is imported only after the headless backend is chosen
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -1,0 +1,112 @@
+"""The experiment's configuration: every flag of `tvf experiment`, stored in EXP/experiment.json.
+
+The command line builds its parser from this class, so it imports no model code; the two methods that
+read the registries import them when called (torch and PyBullet take seconds to import).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from tvf.errors import TvfError
+from tvf.tasks import TaskTable, load_tasks
+
+STAGES = ("data", "train", "eval-vf", "eval", "gifs", "report", "weights")
+RECIPE_FLAGS = {
+    f"{kind}_{field}": (kind, field) for kind in ("gctn", "vf") for field in ("steps", "batch", "lr")
+}
+RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", "warmup")}
+"""Experiment flags that override a field of a model kind's recipe (tvf.train.registry)."""
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """Everything an experiment depends on; stored in EXP/experiment.json and checked on resume."""
+
+    out: Path
+    """Experiment folder (data, runs, evaluations, report); re-running the same command resumes."""
+    demos: int = 10
+    """Demonstrations per training task (the paper: 1, 10, 100, 1000)."""
+    preset: str = "lite"
+    """Model size: lite (2-core CPU) | paper (the reference widths; a GPU job) | smoke (tests)."""
+    data: Path | None = None
+    """An existing dataset root made by `tvf demos` (default: EXP/data, generated here)."""
+    test_demos: int = 5
+    """Test-split episodes per task (validation and foresight evaluation)."""
+    train_tasks: str = "train"
+    """Tasks the models learn from."""
+    tasks: str = "all"
+    """Tasks evaluated in closed loop: train | unseen | all | NAME[,NAME...]."""
+    methods: str = "oracle,gctn,tvf-small,tvf-large"
+    """Methods evaluated, comma-separated."""
+    episodes: int = 20
+    """Closed-loop episodes per task and method (the paper: 20)."""
+    seed: int = 0
+    """Training seed (demo subset, initialisation, batches)."""
+    seed_start: int = 1
+    """Evaluation episode i uses seed seed_start + 2i."""
+    step_slack: int = 0
+    """Extra steps beyond one per block (0 = the paper's protocol)."""
+    gctn_steps: int | None = None
+    """GCTN optimiser steps (default: the preset's, lite 14000)."""
+    gctn_batch: int | None = None
+    """GCTN batch (default: the preset's, lite 2)."""
+    gctn_lr: float | None = None
+    """GCTN Adam (peak) learning rate (default: the preset's, lite 2e-4)."""
+    gctn_schedule: str | None = None
+    """GCTN learning-rate schedule, constant | cosine (default: the preset's, lite cosine)."""
+    gctn_warmup: int | None = None
+    """GCTN warm-up steps of the cosine schedule (default: the preset's, lite 500)."""
+    vf_steps: int | None = None
+    """VF optimiser steps (default: the preset's, lite 3000)."""
+    vf_batch: int | None = None
+    """VF batch (default: the preset's, lite 8)."""
+    vf_lr: float | None = None
+    """VF Adam learning rate (default: the preset's, 1e-4)."""
+    workers: int = 2
+    """Parallel processes for data generation and evaluation."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks and --train-tasks may name."""
+    device: str = "auto"
+    """auto | cpu | cuda: where the models train and run (auto: CUDA when present)."""
+    gifs: int = 1
+    """TVF-L episodes recorded as GIFs per unseen task (0: none)."""
+    stages: str = ",".join(STAGES)
+    """Stages to run, comma-separated, in pipeline order: data,train,eval-vf,eval,gifs,report,weights."""
+    ship: bool = False
+    """After the weights stage, copy EXP/weights over the package's shipped weights (make reproduce)."""
+
+    def resolved(self) -> ExperimentConfig:
+        """Fill the training schedules from the preset's recipes (tvf.train.registry)."""
+        from tvf.train.registry import recipe  # lazy: the registries import torch (see the module doc)
+
+        return replace(self, **{
+            flag: getattr(recipe(kind, self.preset), field)
+            for flag, (kind, field) in RECIPE_FLAGS.items() if getattr(self, flag) is None
+        })  # fmt: skip
+
+    def task_table(self) -> TaskTable:
+        return load_tasks(self.task_file)
+
+    @property
+    def data_root(self) -> Path:
+        return Path(self.data) if self.data is not None else self.out / "data"
+
+    def method_list(self) -> list[str]:
+        from tvf.policies import METHODS  # lazy, as above
+
+        names = [m.strip() for m in self.methods.split(",") if m.strip()]
+        bad = [m for m in names if m not in METHODS]  # the method registry
+        if bad or not names:
+            raise TvfError(
+                f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
+            )
+        return names
+
+    def stage_list(self) -> list[str]:
+        names = [s.strip() for s in self.stages.split(",") if s.strip()]
+        bad = [s for s in names if s not in STAGES]
+        if bad:
+            raise TvfError(f"unknown stage(s) {', '.join(bad)}; choose from {', '.join(STAGES)}")
+        return names

@@ -1,0 +1,82 @@
+"""The environment seam: any factory of `Env`s runs through the episode loop and `evaluate`, and a task
+from a user's file reaches worker processes as a value (no module state)."""
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from tvf.envs import Env
+from tvf.evaluate.closed_loop import evaluate
+from tvf.evaluate.runner import run_episode
+from tvf.policies import OraclePolicy, PolicySpec
+from tvf.sim.factory import SimEnvFactory, sim_env
+from tvf.tasks import Task, get_task, load_tasks
+
+SEEN: list[int] = []
+
+
+class NoisyDepth:
+    """A camera-noise wrapper: the simulator with seeded Gaussian noise on every height map."""
+
+    def __init__(self, env, sigma: float = 0.002) -> None:
+        self.env, self.task, self.sigma = env, env.task, sigma
+        self.rng = np.random.default_rng(0)
+
+    def _noisy(self, obs: dict) -> dict:
+        noise = self.rng.normal(0.0, self.sigma, obs["height"].shape).astype(np.float32)
+        return {**obs, "height": obs["height"] + noise}
+
+    def reset(self, *, seed=None, options=None):
+        SEEN.append(seed)
+        self.rng = np.random.default_rng(seed)
+        obs, info = self.env.reset(seed=seed)
+        return self._noisy(obs), info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self._noisy(obs), reward, terminated, truncated, info
+
+    def oracle_action(self):
+        return self.env.oracle_action()
+
+
+@dataclass(frozen=True)
+class NoisyFactory:
+    sigma: float = 0.002
+
+    def __call__(self, task: Task) -> Env:
+        return NoisyDepth(sim_env(task), self.sigma)
+
+
+def test_the_simulator_implements_the_env_protocol():
+    assert isinstance(sim_env(get_task("stack-stair")), Env)
+    assert isinstance(NoisyFactory()(get_task("stack-stair")), Env)
+
+
+def test_a_wrapped_environment_is_evaluated_through_the_same_loop(tmp_path):
+    SEEN.clear()
+    summary = evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 1, tmp_path, envs=NoisyFactory())
+    assert SEEN == [1, 3] and summary["average"]["episodes"] == 2
+    evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 1, tmp_path / "clean")
+    noisy_actions = [json.loads(x)["actions"] for x in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    clean_actions = [
+        json.loads(x)["actions"] for x in (tmp_path / "clean" / "episodes.jsonl").read_text().splitlines()
+    ]
+    assert noisy_actions != clean_actions  # the wrapper's images, not the simulator's, reached the policy
+
+
+def test_the_loop_stops_at_the_step_budget_and_sees_every_observation():
+    env, seen = sim_env(get_task("stack-stair")), []
+    result = run_episode(env, 1, OraclePolicy(env), 2, on_step=lambda o, g, p: seen.append(p is None))
+    assert result.steps == 2 and not result.success
+    assert seen == [False, False, True]  # two acted-on observations, then the final one
+
+
+def test_a_task_file_task_runs_in_worker_processes(tmp_path):
+    path = tmp_path / "extra.json"
+    path.write_text(json.dumps({"tasks": {"my-pair": {"split": "unseen", "base": "stand_2",
+                                                       "targets": [[0, 0, 0], [0, 0.05, 0]]}}}))  # fmt: skip
+    task = load_tasks(path).get("my-pair")
+    summary = evaluate(PolicySpec("oracle"), [task], 2, 1, 2, tmp_path / "eval", envs=SimEnvFactory())
+    assert summary["average"]["success"] == 1.0 and [r["task"] for r in summary["tasks"]] == ["my-pair"]
