@@ -35,6 +35,10 @@ class EvalCmd:
     """TVF: place proposals per node (default: the method's, 2 or 3)."""
     depth: int | None = None
     """TVF: search depth (default: the method's, 1 or 3)."""
+    proposals: str | None = None
+    """TVF: proposal rule, kmeans (the paper's) | nms (places a block apart; docs/planner.md)."""
+    pick_branches: int | None = None
+    """TVF: distinct picks each node branches over (default 1: the argmax pick only)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...] (see `tvf tasks`)."""
     episodes: int = 20
@@ -53,7 +57,8 @@ class EvalCmd:
     def spec(self):
         from tvf.policies import PolicySpec
 
-        return PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device)
+        return PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device,
+                          self.proposals, self.pick_branches)  # fmt: skip
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
