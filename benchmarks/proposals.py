@@ -38,13 +38,13 @@ from tvf.geometry import world_to_pixel
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import to_rgbh
 from tvf.planning.search import PlannerConfig, TreeSearch
+from tvf.seeds import seed_range
 from tvf.sim.factory import sim_env
 from tvf.sim.oracle import ready_targets
 from tvf.tasks import resolve_tasks
 
 BLOCK_PX = 13.0
 TARGET_PX = 8.0
-TEST_SEEDS = 1_000_000  # seeds from here on are the test range: never used here
 
 
 def variants(k: int) -> dict[str, dict]:
@@ -57,6 +57,7 @@ def variants(k: int) -> dict[str, dict]:
     }
     for p in range(2, min(k, 3) + 1):
         out[f"nms+picks{p}"] = {"proposals": "nms", "pick_branches": p}
+    out[f"nms+picks{min(k, 3)}-alpha0.001"] = {"proposals": "nms", "pick_branches": min(k, 3), "alpha": 0.001}
     return out
 
 
@@ -67,7 +68,7 @@ def scenes(n_seeds: int, n_mid: int) -> list[dict]:
         env = sim_env(task)
         for i in range(n_seeds):
             seed = 2 * i + 1
-            assert seed < TEST_SEEDS
+            assert seed_range(seed) == "validation"
             steps = [0, 1] if i < n_mid else [0]
             obs, info = env.reset(seed=seed)
             goal = to_rgbh(info["goal"]["color"], info["goal"]["height"])

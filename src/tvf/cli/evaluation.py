@@ -53,6 +53,9 @@ class EvalCmd:
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
     device: str = "auto"
     """auto | cpu | cuda: where the models run (auto: CUDA when present)."""
+    env: str = "sim"
+    """The world: sim (the PyBullet simulator) or MODULE:NAME, a picklable factory task -> Env
+    (tvf.envs.Env; docs/architecture.md), e.g. a real robot or a noisy-camera wrapper."""
 
     def spec(self):
         from tvf.policies import PolicySpec
@@ -62,17 +65,19 @@ class EvalCmd:
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
+        from tvf.evaluate.runner import env_factory
         from tvf.policies import get_method, make_policy
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
         tasks = load_tasks(self.task_file).resolve(self.tasks)
+        envs = env_factory(self.env)
         spec = self.spec()
         if not get_method(spec.method).needs_env:
             make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
         check_output_dir(self.out)
         summary = evaluate(
-            spec, tasks, self.episodes, self.seed_start, self.workers, self.out, self.step_slack
+            spec, tasks, self.episodes, self.seed_start, self.workers, self.out, self.step_slack, envs
         )
         print(summary_markdown(summary))
 

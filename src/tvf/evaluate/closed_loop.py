@@ -86,6 +86,10 @@ def evaluate(
     log = out / "episodes.jsonl"
     meta = {**asdict(spec), "episodes": episodes, "seed_start": seed_start, "step_slack": step_slack}
     meta.pop("device")
+    if envs is not None and not isinstance(envs, SimEnvFactory):
+        meta["env"] = (
+            f"{type(envs).__module__}.{type(envs).__qualname__}"  # another world: not resumable as sim
+        )
     meta_path = out / "eval.json"
     if meta_path.exists():
         changed = _changed_settings(meta_path, meta)

@@ -7,18 +7,20 @@ world that implements :class:`tvf.envs.Env` runs through the same loop.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from tvf.envs import Env, EnvFactory, Observation
+from tvf.errors import TvfError
 from tvf.policies import Policy, PolicySpec, policy_for
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.tasks import Task
 
-__all__ = ["EpisodeResult", "episode_seeds", "policy_episode", "run_episode"]
+__all__ = ["EpisodeResult", "env_factory", "episode_seeds", "policy_episode", "run_episode"]
 
 
 @dataclass
@@ -73,3 +75,20 @@ def policy_episode(
     env = (envs or SimEnvFactory())(task)
     stuck = "oracle_stuck" if spec.method == "oracle" else "no_action"
     return run_episode(env, seed, policy_for(spec, env), task.horizon + step_slack, stuck)
+
+
+def env_factory(spec: str = "sim") -> EnvFactory:
+    """The factory named by ``--env``: ``sim`` (the simulator) or ``package.module:Name``, a picklable
+    factory (a class is instantiated without arguments) that maps a task to an :class:`~tvf.envs.Env`."""
+    if spec == "sim":
+        return SimEnvFactory()
+    module, _, name = spec.partition(":")
+    try:
+        found = getattr(importlib.import_module(module), name) if module and name else None
+    except (ImportError, AttributeError) as exc:
+        found, why = None, f" ({type(exc).__name__}: {exc})"
+    else:
+        why = ""
+    if found is None:
+        raise TvfError(f"cannot load environment factory {spec!r}{why}; pass --env sim or --env MODULE:NAME")
+    return found() if isinstance(found, type) else found
