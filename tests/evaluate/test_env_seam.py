@@ -5,8 +5,8 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
+from cli_run import run
 
-from tvf.cli import main
 from tvf.envs import Env
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.runner import run_episode
@@ -83,21 +83,12 @@ def test_a_task_file_task_runs_in_worker_processes(tmp_path):
     assert summary["average"]["success"] == 1.0 and [r["task"] for r in summary["tasks"]] == ["my-pair"]
 
 
-def run(capsys, *args: str) -> tuple[int, str]:
-    try:
-        main(list(args))
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    return code, capsys.readouterr().err
-
-
 def test_tvf_eval_takes_an_environment_factory_by_name(tmp_path, capsys):
     SEEN.clear()
-    code, err = run(capsys, "eval", "--method", "gctn", "--tasks", "stack-stair", "--episodes", "1",
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--tasks", "stack-stair", "--episodes", "1",
                          "--env", "test_env_seam:NoisyFactory", "--out", str(tmp_path))  # fmt: skip
     assert code == 0, err
     assert SEEN == [1000001]  # the test range by default, through the wrapper
     assert json.loads((tmp_path / "eval.json").read_text())["env"].endswith("NoisyFactory")
-    code, err = run(capsys, "eval", "--env", "nowhere:Robot", "--out", str(tmp_path / "x"))
+    code, _, err = run(capsys, "eval", "--env", "nowhere:Robot", "--out", str(tmp_path / "x"))
     assert code == 2 and "cannot load environment factory 'nowhere:Robot'" in err

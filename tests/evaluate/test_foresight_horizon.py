@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from cli_run import run
+from data_factory import make_episode
 
-from tvf.cli import main
 from tvf.data import write_episode
 from tvf.data.dataset import open_dataset
 from tvf.data.format import episode_name
@@ -28,17 +28,6 @@ from tvf.models.images import HEIGHT_STD, to_rgbh
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
 
-
-def _make_episode():
-    spec = importlib.util.spec_from_file_location(
-        "_tvf_data_factory", Path(__file__).parents[1] / "data" / "data_factory.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_episode
-
-
-make_episode = _make_episode()
 # (task, split, steps per episode): a 3- and a 2-step episode of a training task, one unseen task.
 EPISODES = (("stack-tower", "train", (3, 2)), ("stack-stair", "unseen", (3,)))
 H = 3
@@ -195,21 +184,11 @@ def test_a_perfect_model_fed_its_own_predictions_is_exact_at_every_horizon(setup
         assert summary[split]["copy"][3]["changed_height_mae_mm"] > 10
 
 
-def _cli(capsys, *args: str) -> tuple[int, str, str]:
-    try:
-        main(list(args))
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_cli_horizon_flag(setup, tmp_path, capsys):
     data, ckpt = setup
     out = tmp_path / "out"
     args = ("eval-vf", "--vf", str(ckpt), "--data", str(data), "--episodes", "1")
-    code, stdout, _ = _cli(capsys, *args, "--out", str(out), "--horizon", "2")
+    code, stdout, _ = run(capsys, *args, "--out", str(out), "--horizon", "2")
     assert code == 0 and "| vf | 2 | 2 |" in stdout  # the first (3-step) episode of each task: 2 windows
     doc = json.loads((out / "metrics.json").read_text())
     assert set(doc) == {"train", "unseen", "horizons"}
@@ -219,7 +198,7 @@ def test_cli_horizon_flag(setup, tmp_path, capsys):
     assert (out / "horizons.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "rollouts fed their own predictions" in (out / "metrics.md").read_text()
     for bad in ("0", "-1"):
-        code, _, err = _cli(capsys, *args, "--out", str(tmp_path / "bad"), f"--horizon={bad}")
+        code, _, err = run(capsys, *args, "--out", str(tmp_path / "bad"), f"--horizon={bad}")
         assert code == 2 and err.strip().count("\n") == 0
         assert f"--horizon must be at least 1 (1 = one-step metrics only), got {bad}" in err
     assert not (tmp_path / "bad").exists()
