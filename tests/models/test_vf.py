@@ -10,8 +10,9 @@ import torch
 from model_scenes import BLOCK, draw_blocks, pick_place_batch
 
 from tvf.geometry import rotate_pixels
+from tvf.models.checkpoint import load_model, save_checkpoint
 from tvf.models.images import clamp_rgbh, from_rgbh, to_rgbh
-from tvf.models.presets import SMOKE
+from tvf.models.presets import SMOKE, PresetError
 from tvf.models.vf import VisualForesight, encode_action, vf_loss
 
 WINDOW = SMOKE.vf_window
@@ -136,3 +137,32 @@ def test_predict_is_batched_and_clamped() -> None:
             and out_height.min() >= 0
             and out_height.max() <= 0.28
         )
+
+
+def test_blend_head_keeps_untouched_pixels_and_round_trips(tmp_path):
+    preset = SMOKE.replace(vf_head="blend")
+    model = VisualForesight(preset, seed=0).eval()
+    rgbh = torch.randn(2, 4, 160, 160, generator=torch.Generator().manual_seed(1))
+    pick, place = torch.tensor([[40, 40], [100, 60]]), torch.tensor([[120, 120], [30, 130]])
+    yaws = torch.tensor([0.3, -1.0])
+    with torch.no_grad():
+        for conv in [m for m in model.modules() if isinstance(m, torch.nn.Conv2d)][-1:]:
+            conv.weight.zero_()
+            conv.bias.zero_()
+            conv.bias[4] = 30.0  # the keep logit wins everywhere
+        out = model(rgbh, pick, place, yaws)
+    assert out.shape == rgbh.shape
+    torch.testing.assert_close(out, rgbh, atol=1e-6, rtol=0)
+    with torch.no_grad():
+        conv.bias[4], conv.bias[5] = 0.0, 30.0  # now the pasted window wins everywhere
+        pasted = model(rgbh, pick, place, yaws)
+    window = preset.vf_window // 2
+    r, c = place[0].tolist()
+    assert not torch.allclose(pasted[0, :, r - window : r + window, c - window : c + window],
+                              rgbh[0, :, r - window : r + window, c - window : c + window])  # fmt: skip
+    torch.testing.assert_close(pasted[0, :, :10, :10], rgbh[0, :, :10, :10])  # outside the window: kept
+    path = save_checkpoint(tmp_path / "vf.pt", model)
+    loaded, _ = load_model(path, "vf")
+    assert loaded.preset.vf_head == "blend"
+    with pytest.raises(PresetError, match="vf_head"):
+        SMOKE.replace(vf_head="magic")

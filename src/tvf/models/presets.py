@@ -11,6 +11,8 @@ from typing import Any
 
 from tvf.errors import TvfError
 
+VF_HEADS = ("image", "blend")
+
 
 class PresetError(TvfError, ValueError):
     """An unknown preset name or an invalid preset field."""
@@ -39,6 +41,9 @@ class ModelPreset:
         vf_window: side of the VF pick / place masks (pixels).
         vf_pad: zero (= mean value) padding around the VF input, cropped off after the FCN.
         vf_residual: the VF predicts a change added to the input image instead of the image itself.
+        vf_head: "image" (the reference: the FCN draws the next image), "blend" (the FCN edits the
+            input: per pixel a softmax over keep-the-input, the pasted place window and a redrawn
+            value, so untouched pixels stay exact; docs/models.md).
         channels_last: run the convolutions in the channels-last memory format.
     """
 
@@ -56,6 +61,7 @@ class ModelPreset:
     vf_window: int = 44
     vf_pad: int = 22
     vf_residual: bool = False
+    vf_head: str = "image"
     channels_last: bool = True
 
     def __post_init__(self) -> None:
@@ -70,6 +76,8 @@ class ModelPreset:
                 f"symmetry must be a positive divisor of n_rotations ({self.n_rotations}), "
                 f"not {self.symmetry}"
             )
+        if self.vf_head not in VF_HEADS:
+            raise PresetError(f"vf_head must be one of {', '.join(VF_HEADS)}, not {self.vf_head!r}")
         if self.vf_window % 2:
             raise PresetError("vf_window must be even")
 

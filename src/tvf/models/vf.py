@@ -19,6 +19,11 @@ By default the network predicts the next image directly, as the reference. ``pre
 switches to next = input RGB-H + FCN(encoding); on a fixed batch of synthetic block moves the residual
 head sat longer on the copy-the-input plateau (L1 pulls every unchanged pixel's change to zero) and
 ended higher (0.068 vs 0.042 after 400 steps; copying scores 0.116), so it is off by default.
+
+``preset.vf_head = "blend"`` makes the network edit its input instead: three more output channels are
+per-pixel logits of a softmax over (keep the input, take the pasted place window, take the redrawn
+value), and next = w_keep * input + w_paste * pasted + w_draw * FCN. Pixels the action does not touch
+can keep their input exactly, so errors do not pile up when the model is fed its own predictions.
 """
 
 from __future__ import annotations
@@ -67,6 +72,21 @@ def encode_action(
     return torch.cat([rgbh, pick_mask, moved * place_mask], dim=1)
 
 
+BLEND_SOURCES = ("keep", "paste", "draw")
+"""The blend head's per-pixel choices, in the order of its logit channels."""
+
+
+def blend_output(
+    rgbh: torch.Tensor, encoding: torch.Tensor, y: torch.Tensor, place: torch.Tensor, window: int
+) -> torch.Tensor:
+    """The blend head's image: softmax-weighted input, pasted window and drawn value (B, 4, H, W)."""
+    h, w = rgbh.shape[-2:]
+    mask = square_masks(place, window, h, w).to(rgbh.dtype)
+    pasted = rgbh * (1 - mask) + encoding[:, RGBH_CHANNELS + 1 :] * mask
+    weights = torch.softmax(y[:, RGBH_CHANNELS:], dim=1)
+    return weights[:, :1] * rgbh + weights[:, 1:2] * pasted + weights[:, 2:3] * y[:, :RGBH_CHANNELS]
+
+
 def vf_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """L1 on normalised RGB-H, height weighted x5: mean over pixels of (|dR|+|dG|+|dB|+5|dH|) / 4."""
     weights = torch.tensor([1.0, 1.0, 1.0, HEIGHT_WEIGHT], device=predicted.device, dtype=predicted.dtype)
@@ -83,9 +103,9 @@ class VisualForesight(nn.Module):
         super().__init__()
         self.preset = preset
         generator = torch.Generator().manual_seed(seed)
-        self.fcn = resnet36_4s(
-            ACTION_CHANNELS, RGBH_CHANNELS, preset.vf_width, preset.channels_last, generator
-        )
+        self.blend = preset.vf_head == "blend"
+        outputs = RGBH_CHANNELS + (len(BLEND_SOURCES) if self.blend else 0)
+        self.fcn = resnet36_4s(ACTION_CHANNELS, outputs, preset.vf_width, preset.channels_last, generator)
         self.window = preset.vf_window
         self.pad = preset.vf_pad
         self.residual = preset.vf_residual
@@ -102,14 +122,14 @@ class VisualForesight(nn.Module):
         pick = as_pixels(pick_pixels, b, shape).to(rgbh.device)
         place = as_pixels(place_pixels, b, shape).to(rgbh.device)
         yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
-        x = encode_action(rgbh, pick, place, yaws, self.window)
+        enc = encode_action(rgbh, pick, place, yaws, self.window)
         p = self.pad
-        if p:
-            x = F.pad(x, (p, p, p, p))
-        y = self.fcn(x)
+        y = self.fcn(F.pad(enc, (p, p, p, p)) if p else enc)
         if p:
             y = y[:, :, p:-p, p:-p]
         y = y.contiguous()
+        if self.blend:
+            return blend_output(rgbh, enc, y, place, self.window)
         return rgbh + y if self.residual else y
 
     def loss(

@@ -69,8 +69,8 @@ def _stack(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
     return {k: torch.cat([it[k] for it in items]) for k in items[0]}
 
 
-def _base_config(kind: str, cfg: TrainConfig, data: dict[str, Any]) -> dict[str, Any]:
-    return {"kind": kind, "preset": get_preset(cfg.preset).as_dict(), "seed": cfg.seed, "batch": cfg.batch,
+def _base_config(kind: str, cfg: TrainConfig, model, data: dict[str, Any]) -> dict[str, Any]:
+    return {"kind": kind, "preset": model.preset.as_dict(), "seed": cfg.seed, "batch": cfg.batch,
             "lr": cfg.lr, "schedule": schedule_config(cfg), **data}  # fmt: skip
 
 
@@ -88,7 +88,7 @@ def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_k
             return metrics(model, val_items, next(model.parameters()).device)
 
     return TrainingJob(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
-                _base_config(kind, cfg, data))  # fmt: skip
+                _base_config(kind, cfg, model, data))  # fmt: skip
 
 
 def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
@@ -133,7 +133,10 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
 
 def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
-    model = VisualForesight(get_preset(cfg.preset), seed=cfg.seed)
+    preset = get_preset(cfg.preset)
+    if cfg.vf_head is not None:
+        preset = preset.replace(vf_head=cfg.vf_head)
+    model = VisualForesight(preset, seed=cfg.seed)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])

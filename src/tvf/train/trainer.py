@@ -65,6 +65,8 @@ class TrainConfig:
     """Tasks to train on: train | unseen | all | NAME[,NAME...]."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
+    vf_head: str | None = None
+    """VF only: image (the reference's) | blend (edits the input; docs/models.md); default: the preset's."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250
