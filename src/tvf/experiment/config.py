@@ -71,6 +71,8 @@ class ExperimentConfig:
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks and --train-tasks may name."""
     device: str = "auto"
     """auto | cpu | cuda: where the models train and run (auto: CUDA when present)."""
+    vf_horizon: int = 3
+    """Foresight rollouts of 1..H steps in the eval-vf stage (the model fed its own predictions)."""
     gifs: int = 1
     """TVF-L episodes recorded as GIFs per unseen task (0: none)."""
     stages: str = ",".join(STAGES)

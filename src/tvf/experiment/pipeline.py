@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 from tvf.data.generation import GenerationPlan, generate
+from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
@@ -57,11 +58,11 @@ def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
     keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device")}
-    if keep["task_file"] is None:
-        keep.pop("task_file")  # folders made before the flag existed resume
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
-    changed = sorted(k for k in keep if recorded and recorded.get(k) != keep[k])
+    defaults = json.loads(json.dumps({f.name: f.default for f in fields(cfg)}, default=str))
+    # a folder made before a flag existed lacks it: it resumes when the flag keeps its default
+    changed = sorted(k for k in keep if recorded and recorded.get(k, defaults.get(k)) != keep[k])
     if changed:
         raise TvfError(
             f"{cfg.out} holds an experiment with other {', '.join(changed)}; "
@@ -105,8 +106,9 @@ def stage_train(cfg: ExperimentConfig) -> None:
 
 
 def stage_eval_vf(cfg: ExperimentConfig) -> None:
+    device = str(pick_device(cfg.device))
     evaluate_foresight(cfg.out / "vf", cfg.data_root, cfg.out / "eval-vf", max_episodes=cfg.test_demos,
-                       tasks=cfg.task_table())  # fmt: skip
+                       horizon=cfg.vf_horizon, tasks=cfg.task_table(), device=device)  # fmt: skip
 
 
 def method_spec(cfg: ExperimentConfig, method: str) -> PolicySpec:
