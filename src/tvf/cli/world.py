@@ -58,10 +58,11 @@ class OracleCmd:
     """Watch in a PyBullet window (needs a display; one worker)."""
 
     def run(self) -> None:
-        from tvf.evaluate.runner import episode_seeds, policy_episode
+        from tvf.evaluate.runner import policy_episode
         from tvf.io import atomic_write_json
         from tvf.parallel import run_jobs
         from tvf.policies import PolicySpec
+        from tvf.seeds import episode_seeds
         from tvf.sim.factory import SimEnvFactory
         from tvf.tasks import load_tasks
 

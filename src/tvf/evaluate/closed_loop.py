@@ -14,10 +14,11 @@ import numpy as np
 
 from tvf.envs import EnvFactory
 from tvf.errors import TvfError
-from tvf.evaluate.runner import episode_seeds, policy_episode
+from tvf.evaluate.runner import policy_episode
 from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_jsonl
 from tvf.parallel import run_jobs
 from tvf.policies import PolicySpec
+from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.tasks import BUILTIN, Task
 

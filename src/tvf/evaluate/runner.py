@@ -16,11 +16,8 @@ import numpy as np
 from tvf.envs import Env, EnvFactory, Observation
 from tvf.errors import TvfError
 from tvf.policies import Policy, PolicySpec, policy_for
-from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.tasks import Task
-
-__all__ = ["EpisodeResult", "env_factory", "episode_seeds", "policy_episode", "run_episode"]
 
 
 @dataclass

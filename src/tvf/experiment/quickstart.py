@@ -7,12 +7,13 @@ import json
 from pathlib import Path
 
 from tvf.evaluate.closed_loop import summarise
-from tvf.evaluate.runner import EpisodeResult, episode_seeds, policy_episode, run_episode
+from tvf.evaluate.runner import EpisodeResult, policy_episode, run_episode
 from tvf.experiment.pipeline import record_gif
 from tvf.experiment.report import write_report
 from tvf.io import atomic_write_bytes, atomic_write_json
 from tvf.parallel import run_jobs
 from tvf.policies import OraclePolicy, PolicySpec, policy_for
+from tvf.seeds import episode_seeds
 from tvf.sim.factory import sim_env
 from tvf.tasks import Task, TaskTable, load_tasks
 from tvf.viz.images import observation_panel, save_gif, save_png, side_by_side
