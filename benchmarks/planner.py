@@ -5,8 +5,11 @@ with TVF-Large (K=3, depth 3: GCTN on 1 + 3 + 9 states, VF on 3 + 9 + 27 childre
 (K=2, depth 1). The same models serve both modes in the same run. `lite` uses the shipped weights when
 they exist (realistic proposal counts); other presets use seeded random weights.
 
+``--rules`` also times TVF-Large under other proposal rules side by side (same models, same run),
+e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks).
+
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
-[--repeats N] [--threads 2] [--task stack-pyramid]
+[--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
 """
 
 from __future__ import annotations
@@ -52,7 +55,13 @@ def first_observation(task: str, seed: int = 1):
     return to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
 
 
-def bench(preset_name: str, device: torch.device, images, repeats: int) -> dict:
+def rule_config(rule: str) -> dict:
+    """PlannerConfig fields of a rule name: kmeans | nms | nms+picksP."""
+    name, _, picks = rule.partition("+picks")
+    return {"proposals": name, **({"pick_branches": int(picks)} if picks else {})}
+
+
+def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str]) -> dict:
     gctn, vf, shipped = load_models(preset_name, device)
     current, goal = (x.to(device) for x in images)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
@@ -70,6 +79,10 @@ def bench(preset_name: str, device: torch.device, images, repeats: int) -> dict:
             row["counts" if batched else "counts_node_by_node"] = search.search(current, goal).counts
         row["speedup"] = row["node_by_node_s"] / row["batched_s"]
         out[name] = row
+    for rule in rules:
+        search = TreeSearch(gctn, vf, PlannerConfig(k=3, depth=3, **rule_config(rule)))
+        out[f"tvf-large/{rule}"] = {"batched_s": best_seconds(lambda s=search: s.search(current, goal), repeats),
+                                    "counts": search.search(current, goal).counts}  # fmt: skip
     return out
 
 
@@ -82,13 +95,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--task", default="stack-pyramid")
+    parser.add_argument("--rules", default="", help="proposal rules timed side by side (kmeans,nms+picks3)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     images = first_observation(args.task)
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     names = args.presets.split(",") + (["paper"] if args.paper else [])
+    rules = [r for r in args.rules.split(",") if r]
     results = {
-        str(device): {name: bench(name, device, images, args.repeats) for name in names} for device in devices
+        str(device): {name: bench(name, device, images, args.repeats, rules) for name in names}
+        for device in devices
     }
     print(json.dumps({"planner": results, "threads": args.threads, "task": args.task}, indent=1))
 
