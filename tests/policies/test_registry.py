@@ -25,7 +25,10 @@ def test_planner_presets_and_overrides():
     assert PLANNER_METHODS == ("tvf-small", "tvf-large")
     small, large = planner_of(PolicySpec("tvf-small")), planner_of(PolicySpec("tvf-large"))
     assert (small.k, small.depth, large.k, large.depth) == (2, 1, 3, 3)
-    assert planner_of(PolicySpec("tvf-large", k=5, depth=2)) == PlannerConfig(k=5, depth=2)
+    assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
+    assert (small.proposals, small.pick_branches) == ("kmeans", 1)  # the paper's rule
+    paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1))
+    assert paper == PlannerConfig(k=3, depth=3)  # the paper's TVF-L, one flag away
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
         planner_of(PolicySpec("tvf-huge"))
     with pytest.raises(TvfError, match="does not plan"):
@@ -34,7 +37,6 @@ def test_planner_presets_and_overrides():
         make_policy(PolicySpec("tvf-large", k=0))
     nms = planner_of(PolicySpec("tvf-large", proposals="nms", pick_branches=2))
     assert (nms.proposals, nms.pick_branches, nms.k) == ("nms", 2, 3)
-    assert (large.proposals, large.pick_branches) == ("kmeans", 1)  # the presets keep the paper's rule
     with pytest.raises(TvfError, match="unknown proposal rule"):
         planner_of(PolicySpec("tvf-small", proposals="topk"))
 

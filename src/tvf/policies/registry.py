@@ -80,7 +80,11 @@ METHODS: dict[str, Method] = {
         Method("oracle", "oracle", _oracle, needs_env=True),
         Method("gctn", "GCTN", _gctn, models=("gctn",)),
         Method("tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1)),
-        Method("tvf-large", "TVF-L", _tvf, ("gctn", "vf"), PlannerConfig(k=3, depth=3)),
+        # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
+        # the paper's rule is --proposals kmeans --pick-branches 1
+        Method(
+            "tvf-large", "TVF-L", _tvf, ("gctn", "vf"), PlannerConfig(3, 3, proposals="nms", pick_branches=3)
+        ),
     )
 }
 PLANNER_METHODS = tuple(name for name, m in METHODS.items() if m.planner is not None)
