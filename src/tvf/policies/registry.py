@@ -108,8 +108,11 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
     method = get_method(spec.method)
     if method.planner is None:
         raise TvfError(f"{spec.method} does not plan; planner methods are {', '.join(PLANNER_METHODS)}")
+    changes = spec.planner_overrides()
+    if "k" in changes and "pick_branches" not in changes:  # a smaller K shares fewer picks
+        changes["pick_branches"] = max(1, min(method.planner.pick_branches, changes["k"]))
     try:
-        return replace(method.planner, **spec.planner_overrides())
+        return replace(method.planner, **changes)
     except ValueError as exc:
         raise TvfError(
             f"{exc.args[0]}; fix the planner flags (--k, --depth, --proposals, --pick-branches)"

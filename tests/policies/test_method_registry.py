@@ -27,6 +27,7 @@ def test_planner_presets_and_overrides():
     assert (small.k, small.depth, large.k, large.depth) == (2, 1, 3, 3)
     assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
     assert (small.proposals, small.pick_branches) == ("kmeans", 1)  # the paper's rule
+    assert planner_of(PolicySpec("tvf-large", k=2)).pick_branches == 2  # a smaller K shares fewer picks
     paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1))
     assert paper == PlannerConfig(k=3, depth=3)  # the paper's TVF-L, one flag away
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
