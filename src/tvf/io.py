@@ -15,6 +15,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from tvf.errors import TvfError
+
 PUBLIC_FILE_MODE = 0o644
 """Outputs are meant to be shared (a temporary file would otherwise keep a private mode)."""
 TMP_SUFFIX = ".tmp"
@@ -55,6 +57,23 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_write_json(path: str | Path, value: Any, indent: int = 1) -> None:
     """Write ``value`` as JSON (``default=str`` for paths), atomically."""
     atomic_write_bytes(path, json.dumps(value, indent=indent, default=str).encode())
+
+
+_REQUIRED = object()
+
+
+def read_json(path: str | Path, fix: str, default: Any = _REQUIRED) -> Any:
+    """The JSON value in ``path``; ``default`` when the file is missing (if given). A missing (without a
+    default) or unreadable file is a one-line :class:`TvfError` naming the file and ``fix``."""
+    path = Path(path)
+    if not path.exists():
+        if default is not _REQUIRED:
+            return default
+        raise TvfError(f"{path} is missing; {fix}")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        raise TvfError(f"{path} is not valid JSON; {fix}") from None
 
 
 def append_jsonl(path: str | Path, record: dict) -> None:

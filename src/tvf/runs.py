@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from tvf.errors import TvfError
-from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_jsonl
+from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 
 
 class RunError(TvfError):
@@ -39,12 +39,7 @@ class RunDir:
         return self.checkpoints / f"step_{step:06d}.pt"
 
     def read_config(self) -> dict[str, Any]:
-        try:
-            return json.loads(self.config_path.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-            raise RunError(
-                f"{self.config_path} is missing or not valid JSON; is {self.root} a tvf run?"
-            ) from None
+        return read_json(self.config_path, f"is {self.root} a run made by `tvf train`?")
 
     def prepare(self, config: dict[str, Any], resume: bool, match: tuple[str, ...]) -> None:
         """Create the run directory, or check that a resumed one agrees with ``config`` on ``match``."""

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -15,7 +14,7 @@ import numpy as np
 from tvf.envs import EnvFactory
 from tvf.errors import TvfError
 from tvf.evaluate.runner import policy_episode
-from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_jsonl
+from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.parallel import run_jobs
 from tvf.policies import PolicySpec
 from tvf.seeds import episode_seeds
@@ -87,10 +86,9 @@ def evaluate(
     log = out / "episodes.jsonl"
     meta = {**asdict(spec), "episodes": episodes, "seed_start": seed_start, "step_slack": step_slack}
     meta.pop("device")
-    if envs is not None and not isinstance(envs, SimEnvFactory):
-        meta["env"] = (
-            f"{type(envs).__module__}.{type(envs).__qualname__}"  # another world: not resumable as sim
-        )
+    envs = envs or SimEnvFactory()
+    if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
+        meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"
     meta_path = out / "eval.json"
     if meta_path.exists():
         changed = _changed_settings(meta_path, meta)
@@ -102,7 +100,7 @@ def evaluate(
     atomic_write_json(meta_path, meta)
     done = {(r["task"], r["seed"]): r for r in read_results(log)}
     jobs = [(t, s) for t in tasks for s in episode_seeds(seed_start, episodes)]
-    todo = [(t, s, spec, step_slack, envs or SimEnvFactory()) for t, s in jobs if (t.name, s) not in done]
+    todo = [(t, s, spec, step_slack, envs) for t, s in jobs if (t.name, s) not in done]
     if len(todo) < len(jobs):
         print(f"resuming: {len(jobs) - len(todo)} of {len(jobs)} episodes already in {log}")
     for result in run_jobs(policy_episode, todo, workers, f"eval {spec.method}"):
@@ -117,10 +115,7 @@ def evaluate(
 
 
 def _changed_settings(meta_path: Path, meta: dict) -> list[str]:
-    """The settings in which a recorded evaluation differs from ``meta`` (an unreadable record: all)."""
-    try:
-        old = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-        raise TvfError(f"{meta_path} is not valid JSON; restore it or choose another --out") from None
-    old.setdefault("step_slack", meta["step_slack"])  # folders made before it was recorded here
+    """The settings in which a recorded evaluation differs from ``meta`` (settings added since it was made
+    count as None, the value that keeps their old behaviour)."""
+    old = read_json(meta_path, "restore it or choose another --out")
     return sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 from tvf.data.generation import GenerationPlan, generate
@@ -28,13 +28,13 @@ from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import record_episode
 from tvf.experiment.config import RECIPE_FLAGS, ExperimentConfig
 from tvf.experiment.report import group_average, write_report
-from tvf.io import atomic_write_bytes, atomic_write_json
+from tvf.io import atomic_write_bytes, atomic_write_json, read_json
 from tvf.models.checkpoint import load_model, save_checkpoint, trained_checkpoint
 from tvf.policies import PolicySpec, make_policy
 from tvf.runs import RunDir
 from tvf.sim.factory import sim_env
 from tvf.tasks import TaskTable
-from tvf.train.registry import MODELS, recipe
+from tvf.train.registry import MODELS, with_recipe
 from tvf.train.trainer import TrainConfig, train
 from tvf.viz.plan import episode_gif
 from tvf.weights import PROVENANCE, WEIGHTS_DIR, shipped_name
@@ -46,12 +46,7 @@ def _say(message: str) -> None:
 
 def _read_recorded(path: Path) -> dict:
     """EXP/experiment.json as a dict ({} when there is none); a corrupt file is a clear error."""
-    if not path.exists():
-        return {}
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise TvfError(f"{path} is not valid JSON; restore it or choose another --out") from None
+    return read_json(path, "restore it or choose another --out", {})
 
 
 def _record_config(cfg: ExperimentConfig) -> None:
@@ -71,7 +66,7 @@ def _record_config(cfg: ExperimentConfig) -> None:
     commands = recorded.get("commands", [])
     commands.append(" ".join(["tvf", *sys.argv[1:]]) if sys.argv else "tvf experiment")
     cfg.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, json.dumps({**keep, "commands": commands}, indent=1).encode())
+    atomic_write_json(path, {**keep, "commands": commands})
 
 
 def stage_data(cfg: ExperimentConfig) -> None:
@@ -86,16 +81,13 @@ def stage_data(cfg: ExperimentConfig) -> None:
 
 def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
     """The `tvf train` configuration of one model: the preset's recipe with the experiment's overrides."""
-    base = recipe(kind, cfg.preset)
-    fields = {field: getattr(cfg, flag) for flag, (k, field) in RECIPE_FLAGS.items() if k == kind}
-    steps = fields.get("steps", base.steps)
-    return TrainConfig(
-        data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset,
-        schedule=fields.get("schedule", base.schedule), warmup=fields.get("warmup", base.warmup),
-        steps=steps, batch=fields["batch"], lr=fields["lr"], seed=cfg.seed, tasks=cfg.train_tasks,
-        task_file=cfg.task_file, val_every=max(1, steps // 10), checkpoint_every=max(1, steps // 10),
-        log_every=max(1, min(25, steps)), resume=True, device=cfg.device,
-    )  # fmt: skip
+    overrides = {field: getattr(cfg, flag) for flag, (k, field) in RECIPE_FLAGS.items() if k == kind}
+    tc = with_recipe(TrainConfig(
+        data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset, seed=cfg.seed,
+        tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, device=cfg.device, **overrides,
+    ), kind)  # fmt: skip
+    every = max(1, tc.steps // 10)
+    return replace(tc, val_every=every, checkpoint_every=every, log_every=max(1, min(25, tc.steps)))
 
 
 def stage_train(cfg: ExperimentConfig) -> None:
