@@ -1,8 +1,10 @@
 """The one owner of the run-folder layout (LeRobot-style), used by training, evaluation and the CLI::
 
 RUN/config.json              the resolved configuration, the model preset and the data fingerprint
+                             (`tvf train --config RUN/config.json` relaunches the run from it)
 RUN/metrics.jsonl            one JSON object per logged step ({"step", "split": "train"|"val", ...})
-RUN/tb/                      TensorBoard events (the same numbers)
+RUN/tb/                      TensorBoard events (the same numbers, and validation images)
+RUN/wandb/                   Weights & Biases files, with `tvf train --wandb`
 RUN/checkpoints/step_N.pt    checkpoints (tvf.models.checkpoint format), written atomically
 RUN/checkpoints/last.pt      the newest one; `--resume` continues from it
 """

@@ -79,6 +79,8 @@ class ExperimentConfig:
     """Stages to run, comma-separated, in pipeline order: data,train,eval-vf,eval,gifs,report,weights."""
     ship: bool = False
     """After the weights stage, copy EXP/weights over the package's shipped weights (make reproduce)."""
+    wandb: bool = False
+    """Also log the two training runs to Weights & Biases (pip install 'tvf[wandb]'; docs/training.md)."""
 
     def resolved(self) -> ExperimentConfig:
         """Fill the training schedules from the preset's recipes (tvf.train.registry)."""

@@ -52,7 +52,7 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device")}
+    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device", "wandb")}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
     defaults = json.loads(json.dumps({f.name: f.default for f in fields(cfg)}, default=str))
@@ -84,7 +84,8 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
     overrides = {field: getattr(cfg, flag) for flag, (k, field) in RECIPE_FLAGS.items() if k == kind}
     tc = with_recipe(TrainConfig(
         data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset, seed=cfg.seed,
-        tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, device=cfg.device, **overrides,
+        tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, device=cfg.device, wandb=cfg.wandb,
+        **overrides,
     ), kind)  # fmt: skip
     every = max(1, tc.steps // 10)
     return replace(tc, val_every=every, checkpoint_every=every, log_every=max(1, min(25, tc.steps)))

@@ -17,6 +17,7 @@ from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
 from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
+from tvf.train.pictures import gctn_pictures, vf_pictures
 from tvf.train.trainer import TrainConfig, TrainError, TrainingJob, fingerprint, schedule_config
 
 PICK_TOLERANCE_PX = 6
@@ -74,12 +75,15 @@ def _base_config(kind: str, cfg: TrainConfig, model, data: dict[str, Any]) -> di
             "lr": cfg.lr, "schedule": schedule_config(cfg), **data}  # fmt: skip
 
 
-def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_kwargs) -> TrainingJob:
-    """A job from a model, its sampler class, a batch loss and a validation metric function."""
+def _job(
+    kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, pictures, **val_kwargs
+) -> TrainingJob:
+    """A job from a model, its sampler class, a batch loss, a validation metric function and the pictures
+    of one validation sample (the middle one of the fixed samples)."""
     episodes, val_eps, data = _load_episodes(cfg)
     r = model.preset.n_rotations  # the samplers' rotation bins are the model's
     sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r)
-    validate = None
+    validate = draw = None
     if val_eps:
         val_sampler = sampler_cls(val_eps, augment=False, n_rotations=r, **val_kwargs)
         val_items = _fixed_items(val_sampler, cfg.val_samples)
@@ -87,8 +91,11 @@ def _job(kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, **val_k
         def validate() -> dict[str, float]:
             return metrics(model, val_items, next(model.parameters()).device)
 
+        def draw() -> dict[str, np.ndarray]:
+            return pictures(model, val_items[len(val_items) // 2], next(model.parameters()).device)
+
     return TrainingJob(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
-                _base_config(kind, cfg, model, data))  # fmt: skip
+                _base_config(kind, cfg, model, data), draw)  # fmt: skip
 
 
 def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
@@ -101,7 +108,7 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
         losses = model.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    return _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics)
+    return _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures)
 
 
 @torch.no_grad()
@@ -144,7 +151,7 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
         value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target)
         return value, {"loss": float(value.detach())}
 
-    return _job("vf", cfg, model, sampler_cls, loss, vf_metrics, identity_fraction=0.0)
+    return _job("vf", cfg, model, sampler_cls, loss, vf_metrics, vf_pictures, identity_fraction=0.0)
 
 
 @torch.no_grad()

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.tensorboard import SummaryWriter  # heavy, but every use of this module trains
 from tqdm import tqdm
 
 from tvf import __version__
@@ -29,6 +28,7 @@ from tvf.errors import TvfError
 from tvf.io import atomic_path
 from tvf.models.checkpoint import load_checkpoint, save_checkpoint
 from tvf.runs import RunDir
+from tvf.train.sinks import Sinks, import_wandb, start_wandb
 
 
 class TrainError(TvfError):
@@ -73,6 +73,12 @@ class TrainConfig:
     val_samples: int = 48
     checkpoint_every: int = 250
     log_every: int = 25
+    images_every: int = 1
+    """TensorBoard images at every Nth validation and the last (GCTN: pick and place heat maps; VF: input,
+    prediction and truth; of one fixed validation sample); 0: none."""
+    wandb: bool = False
+    """Also log the numbers and images to Weights & Biases (pip install 'tvf[wandb]'; files in RUN/wandb/;
+    WANDB_PROJECT, WANDB_MODE=offline etc. as W&B documents them)."""
     resume: bool = False
     """Continue from RUN/checkpoints/last.pt (the config must match)."""
     device: str = "auto"
@@ -120,6 +126,15 @@ class TrainingJob:
     loss: Callable[[dict[str, torch.Tensor]], tuple[torch.Tensor, dict[str, float]]]
     validate: Callable[[], dict[str, float]] | None
     config: dict[str, Any]
+    pictures: Callable[[], dict[str, np.ndarray]] | None = None
+    """Pictures of a fixed validation sample (name -> uint8 (H, W, 3)), logged with the validation."""
+
+
+def wants_pictures(cfg: TrainConfig, step: int) -> bool:
+    """Whether the validation at ``step`` logs pictures: every ``images_every``-th one and the last."""
+    if cfg.images_every <= 0:
+        return False
+    return step == cfg.steps or (step // cfg.val_every) % cfg.images_every == 0
 
 
 def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
@@ -136,6 +151,10 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
         raise TrainError(f"unknown --schedule {cfg.schedule!r}; choose {' or '.join(SCHEDULES)}")
     if not 0 <= cfg.warmup < cfg.steps:
         raise TrainError(f"--warmup must be at least 0 and below --steps ({cfg.steps}), not {cfg.warmup}")
+    if cfg.images_every < 0:
+        raise TrainError(f"--images-every must be 0 (no images) or more, not {cfg.images_every}")
+    if cfg.wandb:
+        import_wandb()  # a missing package fails before the run folder is made
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = pick_device(cfg.device)
@@ -155,7 +174,7 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
     if start >= cfg.steps:
         print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
         return {}
-    writer = SummaryWriter(str(run.tb), purge_step=start if start else None)
+    sinks = Sinks(run.tb, start if start else None, start_wandb(run.root, config) if cfg.wandb else None)
     amp = device.type == "cuda"
     val: dict[str, float] = {}
     bar = tqdm(
@@ -197,19 +216,19 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
                 means["lr"] = lr
                 t_last, window = now, []
                 run.log({"step": step, "split": "train", **means})
-                for k, v in means.items():
-                    writer.add_scalar(f"train/{k}", v, step)
+                sinks.scalars("train", means, step)
                 bar.set_postfix(loss=f"{means['loss']:.4f}")
             if job.validate is not None and (step % cfg.val_every == 0 or step == cfg.steps):
                 model.eval()
                 val = job.validate()
                 run.log({"step": step, "split": "val", **val})
-                for k, v in val.items():
-                    writer.add_scalar(f"val/{k}", v, step)
+                sinks.scalars("val", val, step)
+                if job.pictures is not None and wants_pictures(cfg, step):
+                    sinks.images(job.pictures(), step)
                 t_last = time.perf_counter()  # steps_per_s counts training only
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
                 checkpoint(step)
     finally:
         bar.close()
-        writer.close()
+        sinks.close()
     return val
