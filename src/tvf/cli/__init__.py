@@ -14,7 +14,7 @@ from tvf.cli.data import DataCmd, DemosCmd
 from tvf.cli.evaluation import EvalCmd, EvalVfCmd
 from tvf.cli.experiment import ExperimentCmd
 from tvf.cli.quickstart import QuickstartCmd
-from tvf.cli.train import TrainCmd
+from tvf.cli.train import TrainCmd, relaunch_command
 from tvf.cli.viz import VizCmd
 from tvf.cli.world import OracleCmd, RenderCmd, TasksCmd
 from tvf.errors import TvfError
@@ -42,10 +42,12 @@ COMMANDS: dict[str, type] = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    command = tyro.extras.subcommand_cli_from_dict(
-        {name: cls for name, cls in COMMANDS.items()}, args=argv, description=DESCRIPTION
-    )
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
+        # `tvf train --config RUN/config.json` takes its defaults from the file, so tyro parses it apart
+        command = relaunch_command(args) or tyro.extras.subcommand_cli_from_dict(
+            {name: cls for name, cls in COMMANDS.items()}, args=args, description=DESCRIPTION
+        )
         command.run()
     except TvfError as exc:
         print(f"tvf: error: {' '.join(str(exc).split())}", file=sys.stderr)  # always one line
