@@ -9,6 +9,7 @@ import pytest
 import tyro
 
 from tvf.cli import COMMANDS, main
+from tvf.cli.train import TrainGctn, split_config_flag
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -44,7 +45,12 @@ def test_every_documented_command_parses(doc, argv):
     """Parsing builds the command's dataclass: unknown or renamed flags fail here."""
     name, rest = argv[0], argv[1:]
     assert name in COMMANDS, f"{doc}: `tvf {name}` is no command"
-    cmd = tyro.cli(COMMANDS[name], args=rest)
+    if name == "train" and "--config" in rest:  # a relaunch: the flags beside --config are training flags
+        path, flags = split_config_flag(rest)
+        assert path and path.endswith("config.json"), f"{doc}: `tvf train --config` takes RUN/config.json"
+        cmd = tyro.cli(TrainGctn, args=flags, default=TrainGctn(data=Path("."), out=Path(".")))
+    else:
+        cmd = tyro.cli(COMMANDS[name], args=rest)
     assert callable(cmd.run)
 
 
@@ -73,7 +79,7 @@ def test_the_data_and_training_chains_run_at_smoke_size(tmp_path, monkeypatch, c
     monkeypatch.chdir(tmp_path)
     chain = [c for p in ("data.md", "training.md") for c in doc_commands(ROOT / "docs" / p)]
     chain = [c for c in chain if c[0] in ("demos", "train", "eval") or c[:2] == ["data", "info"]]
-    assert [c[0] for c in chain].count("train") == 2
+    assert [c[0] for c in chain].count("train") == 3  # gctn, vf and a relaunch of the gctn run
     for argv in chain:
         try:
             main(smoke(argv))
