@@ -82,7 +82,7 @@ class RunDir:
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
-    """A run directory (its checkpoints/last.pt) or a checkpoint file; a clear error when neither."""
+    """A run directory (its checkpoints/last.pt), a checkpoint or a weights file; a clear error otherwise."""
     path = Path(path)
     if path.is_dir():
         last = RunDir(path).last
@@ -90,5 +90,5 @@ def resolve_checkpoint(path: str | Path) -> Path:
             raise RunError(f"{path} holds no checkpoints/last.pt; pass a run directory made by `tvf train`")
         return last
     if not path.exists():
-        raise RunError(f"checkpoint {path} does not exist; pass a run directory or a .pt file")
+        raise RunError(f"checkpoint {path} does not exist; pass a run directory, a .pt or .safetensors file")
     return path

@@ -6,7 +6,7 @@ import pytest
 from cli_run import run
 
 import tvf.weights
-from tvf.models.checkpoint import save_checkpoint
+from tvf.models.checkpoint import save_checkpoint, save_weights
 from tvf.models.gctn import GCTN
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
@@ -14,11 +14,12 @@ from tvf.models.vf import VisualForesight
 
 @pytest.fixture(scope="module")
 def smoke_weights(tmp_path_factory):
-    """Smoke-preset checkpoints named as the shipped ones."""
+    """Smoke-preset weights named as the shipped ones (safetensors), and as training checkpoints (.pt)."""
     folder = tmp_path_factory.mktemp("weights")
     preset = get_preset("smoke")
-    save_checkpoint(folder / "gctn-lite.pt", GCTN(preset, seed=0))
-    save_checkpoint(folder / "vf-lite.pt", VisualForesight(preset, seed=0))
+    for kind, model in (("gctn", GCTN(preset, seed=0)), ("vf", VisualForesight(preset, seed=0))):
+        save_weights(folder / tvf.weights.shipped_name(kind), model)
+        save_checkpoint(folder / f"{kind}-lite.pt", model)
     return folder
 
 

@@ -7,7 +7,9 @@ import pytest
 from tvf.errors import TvfError
 from tvf.experiment.config import ExperimentConfig
 from tvf.experiment.pipeline import run_experiment, ship_weights, train_config
+from tvf.experiment.shipping import model_card
 from tvf.models.checkpoint import load_model
+from tvf.weights import sha256_file, shipped_files
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +38,20 @@ def test_every_stage_writes_its_outputs(experiment):
     assert provenance["experiment"]["preset"] == "smoke"
     assert set(provenance["results"]) == {"gctn", "tvf-large"}
     assert provenance["results"]["gctn"]["unseen"]["episodes"] == 1
-    model, ckpt = load_model(out / "weights" / "gctn-smoke.pt", "gctn")  # named after its preset
+    model, ckpt = load_model(out / "weights" / "gctn-smoke.safetensors", "gctn")  # named after its preset
     assert ckpt.optimizer is None and ckpt.step == 2
+    assert provenance["models"]["vf"]["sha256"]["vf-smoke.safetensors"] == sha256_file(
+        out / "weights" / "vf-smoke.safetensors"
+    )
+    assert (out / "weights" / "README.md").read_text() == model_card(provenance)
+    assert "TVF-L (the experiment) | test (odd, from 1 000 001) | 1 |" in model_card(provenance)
+
+
+def test_ship_copies_the_weights_folder_into_the_package(experiment, tmp_path):
+    cfg, _ = experiment
+    ship_weights(cfg.out / "weights", tmp_path, "smoke")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(shipped_files("smoke"))
+    load_model(tmp_path / "vf-smoke.safetensors", "vf")
 
 
 def test_rerun_resumes_without_redoing_work(experiment):

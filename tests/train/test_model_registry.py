@@ -18,8 +18,8 @@ def test_every_kind_has_a_class_a_sampler_a_job_and_a_recipe_per_preset():
     for name, kind in MODELS.items():
         assert kind.model_class is MODEL_CLASSES[name]
         assert set(kind.recipes) == set(PRESETS)
-        assert kind.shipped_file("lite") == shipped_name(name) == f"{name}-lite.pt"
-        assert kind.shipped_file("paper") == f"{name}-paper.pt"
+        assert kind.shipped_file("lite") == shipped_name(name) == f"{name}-lite.safetensors"
+        assert kind.shipped_file("paper") == f"{name}-paper.safetensors"
 
 
 @pytest.mark.parametrize("kind", ["gctn", "vf"])

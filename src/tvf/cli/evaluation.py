@@ -29,7 +29,7 @@ class EvalCmd:
     out: Path = Path("out/eval")
     """Output directory (re-running the same command resumes)."""
     gctn: Path | None = None
-    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    """GCTN run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
     vf: Path | None = None
     """VF run directory or checkpoint file (TVF methods); default: the shipped weights."""
     k: int | None = None
@@ -96,7 +96,7 @@ class EvalVfCmd:
     data: Path
     """Dataset root with a test/ split, or a test split folder."""
     vf: Path | None = None
-    """VF run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    """VF run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
     out: Path = Path("out/eval-vf")
     episodes: int = 20
     """Test episodes per task (the reference used the first 20)."""

@@ -39,7 +39,7 @@ class VizGctn:
     out: Path
     """Output directory (gctn_decision.png, gctn_maps.npz)."""
     gctn: Path | None = None
-    """GCTN run directory (uses checkpoints/last.pt) or checkpoint file; default: the shipped weights."""
+    """GCTN run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
     seed: int = 1
     """Scene seed (odd seeds below 1000001 are the validation range)."""
     task_file: Path | None = None

@@ -9,8 +9,9 @@ Stages (each one skips or resumes what is already in EXP):
 4. ``eval``: closed loop for every method into ``EXP/eval/METHOD`` (episodes.jsonl resumes);
 5. ``gifs``: one TVF-L episode per unseen task beside its imagined best paths, ``EXP/gifs/TASK.gif``;
 6. ``report``: ``EXP/report.md``, ``EXP/report.html`` and ``EXP/success.png``;
-7. ``weights``: the trained models without optimiser state plus ``provenance.json`` in ``EXP/weights``
-   (``make reproduce`` copies them to the shipped weights).
+7. ``weights``: the trained models as safetensors + JSON config, ``provenance.json`` (with every file's
+   SHA-256) and the model card ``README.md`` in ``EXP/weights`` (``--ship``, as in ``make reproduce``,
+   copies them to the shipped weights; tvf.experiment.shipping).
 """
 
 from __future__ import annotations
@@ -27,17 +28,15 @@ from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import record_episode
 from tvf.experiment.config import RECIPE_FLAGS, ExperimentConfig
-from tvf.experiment.report import group_average, write_report
-from tvf.io import atomic_write_bytes, atomic_write_json, read_json
-from tvf.models.checkpoint import load_model, save_checkpoint, trained_checkpoint
+from tvf.experiment.report import write_report
+from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
+from tvf.io import atomic_write_json, read_json
 from tvf.policies import PolicySpec, make_policy
-from tvf.runs import RunDir
 from tvf.sim.factory import sim_env
-from tvf.tasks import TaskTable
 from tvf.train.registry import MODELS, with_recipe
 from tvf.train.trainer import TrainConfig, train
 from tvf.viz.plan import episode_gif
-from tvf.weights import PROVENANCE, WEIGHTS_DIR, shipped_name
+from tvf.weights import PROVENANCE, WEIGHTS_DIR
 
 
 def _say(message: str) -> None:
@@ -165,44 +164,19 @@ def stage_report(cfg: ExperimentConfig) -> tuple[Path, Path]:
     return write_report(cfg.out, _summaries(cfg), _meta(cfg), gifs)
 
 
-def _group_results(summary: dict, table: TaskTable) -> dict:
-    """A method's average success over all tasks, the unseen ones and the training ones."""
-    out = {"all": summary["average"]}
-    for split in ("unseen", "train"):
-        average = group_average(summary, [t.name for t in table.resolve(split)])
-        if average is not None:
-            out[split] = average
-    return out
-
-
 def stage_weights(cfg: ExperimentConfig) -> Path:
-    """Model-only copies of the trained checkpoints plus a provenance record, in EXP/weights."""
+    """The trained models as shipped weights, their provenance (experiment, models, results) and model
+    card, in EXP/weights."""
     out = cfg.out / "weights"
-    record: dict = {"experiment": _read_recorded(cfg.out / "experiment.json"), "models": {}}
+    atomic_write_json(out / PROVENANCE, {"experiment": _read_recorded(cfg.out / "experiment.json")})
     for kind in MODELS:
-        run = RunDir(cfg.out / kind)
-        model, ckpt = load_model(trained_checkpoint(run.root, kind), kind)
-        run_config = run.read_config()
-        name = shipped_name(kind, cfg.preset)
-        save_checkpoint(out / name, model, None, ckpt.step, ckpt.config, ckpt.extra)
-        record["models"][kind] = {
-            "file": name, "step": ckpt.step, "preset": cfg.preset,
-            "data_fingerprint": run_config.get("data_fingerprint"), "seed": run_config.get("seed"),
-            "episodes": run_config.get("episodes"), "train": run_config.get("train"),
-            "parameters": sum(p.numel() for p in model.parameters()), "validation": run.last_validation(),
-        }  # fmt: skip
+        ship_model(cfg.out / kind, kind, out)
+    record = read_json(out / PROVENANCE, "run the weights stage again")
     table = cfg.task_table()
-    record["results"] = {m: _group_results(summary, table) for m, summary in _summaries(cfg).items()}
+    record["results"] = {m: group_results(summary, table) for m, summary in _summaries(cfg).items()}
     atomic_write_json(out / PROVENANCE, record)
+    write_model_card(out)
     return out
-
-
-def ship_weights(exp_weights: Path, target: Path, preset: str = "lite") -> None:
-    """Copy an experiment's weights folder (models of ``preset``) into the package's shipped weights."""
-    for name in (*(shipped_name(kind, preset) for kind in MODELS), PROVENANCE):
-        if not (exp_weights / name).exists():
-            raise TvfError(f"{exp_weights / name} is missing; run the experiment's weights stage first")
-        atomic_write_bytes(target / name, (exp_weights / name).read_bytes())
 
 
 RUNNERS = {

@@ -1,17 +1,27 @@
-"""Checkpoints: atomic save, validated load (``torch.load(weights_only=True)``), model rebuild.
+"""Checkpoints and weights: atomic save, validated load, model rebuild.
 
-A checkpoint is a dict of plain data and tensors::
+Two formats load through the same functions (:func:`load_checkpoint`, :func:`load_model`):
+
+* a training checkpoint ``*.pt`` (runs, resumable; read with ``torch.load(weights_only=True)``), a dict
+  of plain data and tensors::
 
     {"format": "tvf-checkpoint", "version": 1, "kind": "gctn" | "vf", "config": {...},
      "step": int, "model": state_dict, "optimizer": state_dict | None, "extra": {...}}
 
+* weights ``KIND-PRESET.safetensors`` (the shipped format, no pickle: ``safetensors.torch.load_file``)
+  with a JSON config of the same name beside it::
+
+    {"format": "tvf-weights", "version": 1, "kind": ..., "model_class": ..., "weights": FILE,
+     "config": {...}, "step": int, "parameters": int, "tvf_version": ..., "extra": {...}}
+
 ``config`` must hold ``{"preset": ModelPreset.as_dict()}`` for :func:`load_model` to rebuild the
 network; anything else in it (and in ``extra``) must be plain Python data (dict, list, str, numbers,
-bool, None) or tensors.
+bool, None) or tensors (checkpoints only).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import zipfile
@@ -19,19 +29,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import safetensors
+import safetensors.torch
 import torch
 from torch import nn
 
+import tvf
 from tvf.errors import TvfError
-from tvf.io import atomic_path
+from tvf.io import atomic_path, atomic_write_bytes, atomic_write_json
 from tvf.models.gctn import GCTN
 from tvf.models.presets import ModelPreset, PresetError
 from tvf.models.vf import VisualForesight
 from tvf.runs import resolve_checkpoint
-from tvf.weights import shipped_checkpoint
+from tvf.weights import WEIGHTS_SUFFIX, config_path, shipped_checkpoint
 
 FORMAT = "tvf-checkpoint"
 VERSION = 1
+WEIGHTS_FORMAT = "tvf-weights"
+WEIGHTS_VERSION = 1
 
 
 class CheckpointError(TvfError):
@@ -111,9 +126,79 @@ def save_checkpoint(
     return path
 
 
+def save_weights(
+    path: str | os.PathLike,
+    model: nn.Module,
+    step: int = 0,
+    config: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``model``'s tensors as safetensors to ``path`` and its JSON config beside it (both atomically).
+
+    ``config`` defaults to ``model.config()``; ``extra`` (plain data) is kept in the JSON. Returns ``path``.
+    """
+    path = Path(path)
+    if path.suffix != WEIGHTS_SUFFIX:
+        raise CheckpointError(f"weights file {path} must end in {WEIGHTS_SUFFIX}")
+    config = model.config() if config is None else config
+    extra = extra or {}
+    _check_plain(config, "config")
+    _check_plain(extra, "extra")
+    kind = model_kind(model)
+    tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    header = {WEIGHTS_FORMAT: kind}  # one key: safetensors writes several in any order (same bytes each time)
+    atomic_write_bytes(path, safetensors.torch.save(tensors, metadata=header))
+    atomic_write_json(config_path(path), {
+        "format": WEIGHTS_FORMAT, "version": WEIGHTS_VERSION, "kind": kind,
+        "model_class": type(model).__name__, "weights": path.name, "config": config, "step": int(step),
+        "parameters": sum(p.numel() for p in model.parameters()), "tvf_version": tvf.__version__,
+        "extra": extra,
+    }, indent=2)  # fmt: skip
+    return path
+
+
+def _read_weights(path: Path) -> dict[str, Any]:
+    """A safetensors weights file and its JSON config, as a checkpoint payload (no optimiser)."""
+    meta_path = config_path(path)
+    if not meta_path.is_file():
+        raise CheckpointError(
+            f"weights {path} have no config {meta_path.name} beside them; copy it along or re-export them"
+        )
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"weights config {meta_path} is not valid JSON ({e}); re-export it") from e
+    if not isinstance(meta, dict) or meta.get("format") != WEIGHTS_FORMAT:
+        raise CheckpointError(f"{meta_path} is not a tvf weights config; pass weights written by tvf")
+    if meta.get("version") != WEIGHTS_VERSION:
+        raise CheckpointError(
+            f"weights config {meta_path} has format version {meta.get('version')}, this tvf reads "
+            f"{WEIGHTS_VERSION}; re-export the weights with this version"
+        )
+    try:
+        tensors = safetensors.torch.load_file(path, device="cpu")
+        with safetensors.safe_open(path, framework="pt") as f:
+            header = f.metadata() or {}
+    except (safetensors.SafetensorError, OSError, ValueError) as e:
+        raise CheckpointError(
+            f"weights {path} are corrupt or not safetensors ({type(e).__name__}); pass another file"
+        ) from e
+    if header.get(WEIGHTS_FORMAT) != meta.get("kind"):
+        raise CheckpointError(
+            f"weights {path} hold a {header.get(WEIGHTS_FORMAT)!r} model but {meta_path.name} describes a "
+            f"{meta.get('kind')!r} one; pass matching files"
+        )
+    return {
+        "format": FORMAT, "version": VERSION, "kind": meta["kind"], "config": meta.get("config"),
+        "step": meta.get("step", 0), "model": tensors, "optimizer": None, "extra": meta.get("extra"),
+    }  # fmt: skip
+
+
 def _read(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist; train a model first or pass the right path")
+    if path.suffix == WEIGHTS_SUFFIX:
+        return _read_weights(path)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, OSError, ValueError) as e:
@@ -230,8 +315,15 @@ def load_model(path: str | os.PathLike, expected_kind: str) -> tuple[nn.Module, 
     return model, ckpt
 
 
+def export_weights(source: str | os.PathLike, kind: str, out: str | os.PathLike) -> Path:
+    """Write the model of a run directory, a ``.pt`` checkpoint or weights as ``out`` (``*.safetensors``)
+    plus its JSON config: the same step, config and extra, without optimiser state. Returns ``out``."""
+    model, ckpt = load_model(resolve_checkpoint(source), kind)
+    return save_weights(out, model, ckpt.step, ckpt.config, ckpt.extra)
+
+
 def trained_checkpoint(path: str | os.PathLike | None, kind: str) -> Path:
-    """A run directory (its last checkpoint), a checkpoint file, or None for the shipped weights."""
+    """A run directory (its last checkpoint), a checkpoint or weights file, or None (the shipped weights)."""
     return shipped_checkpoint(kind) if path is None else resolve_checkpoint(path)
 
 

@@ -1,10 +1,10 @@
-"""A Gymnasium environment for one rearrangement task.
+"""A Gymnasium environment for one rearrangement task (registered as ``tvf/<Task>-v0`` by :mod:`tvf.envs`).
 
-``reset(seed=s)`` lays out the scene for seed ``s`` and returns the top-down image; ``info['goal']``
-holds the image of the finished structure for that seed, made by settling the blocks on their targets
-in a saved copy of the scene (independent of any expert, one render, exact targets). ``step(action)``
-runs one pick-and-place, where ``action`` is a ``(2, 4)`` array of pick and place poses
-(x, y, z, yaw) in metres and radians.
+``reset(seed=s)`` lays out the scene for seed ``s`` and returns the top-down image; the image of the
+finished structure for that seed (made by settling the blocks on their targets in a saved copy of the
+scene: independent of any expert, one render, exact targets) is in ``obs['desired_goal']`` and
+``info['goal']``. ``step(action)`` runs one pick-and-place, where ``action`` is a ``(2, 4)`` array of
+pick and place poses (x, y, z, yaw) in metres and radians (docs/gymnasium.md).
 
 Seeds: one ``numpy.random.SeedSequence(seed)`` is split into independent streams for the layout,
 the oracle's order, and the oracle's and random actions' choices, so the same seed gives the same
@@ -14,6 +14,7 @@ scene, the same oracle trajectory and the same images.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -23,7 +24,7 @@ from tvf.geometry import WORKSPACE
 from tvf.sim.oracle import oracle_action, random_action
 from tvf.sim.success import Progress, evaluate_structure
 from tvf.sim.world import SimConfig, World
-from tvf.tasks import Task, get_task
+from tvf.tasks import Task, get_task, load_tasks
 
 
 class ActionError(TvfError):
@@ -56,10 +57,41 @@ def validate_action(action: np.ndarray) -> np.ndarray:
     return a
 
 
-class TvfEnv(gym.Env):
-    """Pick-and-place rearrangement of red blocks onto a brown base, observed top-down as RGB-H."""
+def image_space() -> gym.spaces.Dict:
+    """A top-down image: ``color`` uint8 (H, W, 3) and ``height`` float32 (H, W) metres above the table."""
+    h, w = WORKSPACE.shape
+    return gym.spaces.Dict(
+        {
+            "color": gym.spaces.Box(0, 255, (h, w, 3), np.uint8),
+            "height": gym.spaces.Box(0.0, WORKSPACE.z_max, (h, w), np.float32),
+        }
+    )
 
-    metadata = {"render_modes": ["rgb_array"]}
+
+def action_space() -> gym.spaces.Box:
+    """Pick and place poses ``(x, y, z, yaw)`` in the workspace, metres and radians: a ``(2, 4)`` box."""
+    lo = np.array([[WORKSPACE.x_min, WORKSPACE.y_min, WORKSPACE.z_min, -np.pi]] * 2)
+    hi = np.array([[WORKSPACE.x_max, WORKSPACE.y_max, WORKSPACE.z_max, np.pi]] * 2)
+    return gym.spaces.Box(lo, hi, dtype=np.float64)
+
+
+def resolve_task(task: str | Task, task_file: str | Path | None = None) -> Task:
+    """A task value, a built-in task name, or a name from ``task_file`` (tvf.tasks.load_tasks)."""
+    if isinstance(task, Task):
+        if task_file is not None:
+            raise TvfError("pass a task name together with task_file, not a Task value")
+        return task
+    return load_tasks(task_file).get(task) if task_file is not None else get_task(task)
+
+
+class TvfEnv(gym.Env):
+    """Pick-and-place rearrangement of red blocks onto a brown base, observed top-down as RGB-H.
+
+    Observations are ``{"color", "height", "desired_goal": {"color", "height"}}``; ``render()`` (with
+    ``render_mode="rgb_array"``) returns the current top-down colour image, one frame per pick-and-place.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 1}
 
     def __init__(
         self,
@@ -67,29 +99,24 @@ class TvfEnv(gym.Env):
         config: EnvConfig | None = None,
         render_mode: str | None = None,
         gui: bool = False,
+        task_file: str | Path | None = None,
     ) -> None:
-        self.task = get_task(task) if isinstance(task, str) else task
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise TvfError(f"render_mode {render_mode!r} is not supported; use 'rgb_array' or None")
+        self.task = resolve_task(task, task_file)
         self.config = config or EnvConfig()
         if gui:
             self.config = replace(self.config, sim=replace(self.config.sim, gui=True))
         self.render_mode = render_mode
         self.world = World(self.config.sim)
-        h, w = WORKSPACE.shape
-        image = gym.spaces.Dict(
-            {
-                "color": gym.spaces.Box(0, 255, (h, w, 3), np.uint8),
-                "height": gym.spaces.Box(0.0, WORKSPACE.z_max, (h, w), np.float32),
-            }
-        )
-        self.observation_space = image
-        lo = np.array([[WORKSPACE.x_min, WORKSPACE.y_min, WORKSPACE.z_min, -np.pi]] * 2)
-        hi = np.array([[WORKSPACE.x_max, WORKSPACE.y_max, WORKSPACE.z_max, np.pi]] * 2)
-        self.action_space = gym.spaces.Box(lo, hi, dtype=np.float64)
+        self.observation_space = gym.spaces.Dict({**image_space().spaces, "desired_goal": image_space()})
+        self.action_space = action_space()
         self.order: tuple[tuple[int, ...], ...] = self.task.orders[0]
         self.steps = 0
         self.seed_value: int | None = None
         self._oracle_rng = np.random.default_rng(0)
         self._last_obs: dict[str, np.ndarray] | None = None
+        self._goal: dict[str, np.ndarray] = {}
 
     @property
     def max_steps(self) -> int:
@@ -107,15 +134,17 @@ class TvfEnv(gym.Env):
         self._oracle_rng = np.random.default_rng(oracle_ss)
         self.steps = 0
         goal_color, goal_height = self.world.goal_observation()
+        self._goal = {"color": goal_color, "height": goal_height}
         obs = self._observe()
         info = self._info(self.progress())
-        info["goal"] = {"color": goal_color, "height": goal_height}
+        info["goal"] = self._goal
         return obs, info
 
-    def _observe(self) -> dict[str, np.ndarray]:
+    def _observe(self) -> dict:
         color, height = self.world.observe()
         self._last_obs = {"color": color, "height": height}
-        return self._last_obs
+        goal = {k: v.copy() for k, v in self._goal.items()}  # new arrays on every call (Gymnasium's rule)
+        return {**self._last_obs, "desired_goal": goal}
 
     def progress(self) -> Progress:
         return evaluate_structure(*self.world.block_poses(), *self.world.target_poses())
@@ -153,10 +182,13 @@ class TvfEnv(gym.Env):
         """Move the block the expert would move next to a random free pose (for foresight data)."""
         return random_action(self.world, self.order, self._oracle_rng)
 
-    def render(self):
-        if self.render_mode == "rgb_array" and self._last_obs is not None:
-            return self._last_obs["color"]
-        return None
+    def render(self) -> np.ndarray | None:
+        """The current top-down colour image, uint8 (H, W, 3), in ``rgb_array`` mode (blank before reset)."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._last_obs is None:
+            return np.zeros((*WORKSPACE.shape, 3), np.uint8)
+        return self._last_obs["color"].copy()
 
     def close(self) -> None:
         self.world.close()
