@@ -171,10 +171,11 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     _show(fig.add_subplot(grid[0, 1]), obs["height"], "current height", "viridis")
     _show(fig.add_subplot(grid[0, 2]), goal["color"], "goal")
     _proposals_panel(fig.add_subplot(grid[0, 3]), obs, plan)
-    draw_tree(fig.add_subplot(grid[1, :]), obs, plan, n_rotations)
-    fig.suptitle(
-        f"search tree: {len(plan.nodes)} imagined nodes, best #{plan.best} (blue path); "
-        "each node: colour | height, score s, distance D to the goal, turn of its place",
+    tree = fig.add_subplot(grid[1, :])
+    draw_tree(tree, obs, plan, n_rotations)
+    tree.set_title(
+        f"search tree: {len(plan.nodes)} imagined nodes, best #{plan.best} (blue path); each node: colour | "
+        "height, score s, distance D to the goal, turn of its place",
         fontsize=9,
     )
     fig.tight_layout()
