@@ -50,16 +50,66 @@ def test_viz_plan_draws_every_node_of_a_custom_tree(capsys, tmp_path, smoke_weig
     assert plan["path"][-1] == plan["best"] and plan["counts"]["gctn_calls"] == 2
 
 
-def test_quickstart_uses_the_shipped_weights(capsys, tmp_path, smoke_weights, monkeypatch):
-    monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", smoke_weights)
+def shipped_record() -> dict:
+    """A provenance record with numbers of its own (the report must show these, not built-in ones)."""
+    results = {
+        "gctn": {"unseen": {"success": 0.111, "ci95": [0.05, 0.2], "episodes": 72}},
+        "tvf-large": {"unseen": {"success": 0.222, "ci95": [0.15, 0.3], "episodes": 72}},
+    }
+    return {
+        "experiment": {"demos": 3, "episodes": 9, "seed_start": 1},
+        "models": {"gctn": {"file": "gctn-lite.pt", "step": 77, "data_fingerprint": "abc123"}},
+        "results": results,
+    }
+
+
+def test_quickstart_compares_gctn_and_tvf_large_beside_the_shipped_record(
+    capsys, tmp_path, smoke_weights, monkeypatch
+):
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    for name in ("gctn-lite.pt", "vf-lite.pt"):
+        (weights / name).write_bytes((smoke_weights / name).read_bytes())
+    (weights / "provenance.json").write_text(json.dumps(shipped_record()))
+    monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", weights)
+    out_dir = tmp_path / "q"
     code, out, err = run(
         capsys, "quickstart", "--tasks", "stack-stair", "--episodes", "1", "--workers", "1",
-        "--out", str(tmp_path),
+        "--out", str(out_dir),
     )  # fmt: skip
     assert code == 0, err
-    assert "TVF-L" in out and (tmp_path / "report.html").exists()
-    assert (tmp_path / "gifs" / "stack-stair-0.gif").read_bytes()[:6] == b"GIF89a"
-    assert "stack-stair" in (tmp_path / "report.md").read_text()
+    assert "the shipped weights' record on the unseen tasks: 11% vs 22%" in out
+    assert "GCTN " in out and "TVF-L " in out and (out_dir / "report.html").exists()
+    for method in ("gctn", "tvf-large"):
+        assert (out_dir / "gifs" / method / "stack-stair-0.gif").read_bytes()[:6] == b"GIF89a"
+        episodes = (out_dir / "eval" / method / "episodes.jsonl").read_text().splitlines()
+        assert [json.loads(e)["seed"] for e in episodes] == [1]  # the same episode for both
+    md = (out_dir / "report.md").read_text()
+    assert md.startswith("# tvf quick start: GCTN vs TVF-L on stack-stair (gctn-lite + vf-lite, tvf ")
+    assert "| run | GCTN and TVF-L on the same 1 episode: 1 per task on stack-stair" in md
+    assert "| *shipped weights (9 episodes per task)* | 11.1% [5–20] | 22.2% [15–30] |" in md
+    assert "*paper (10 demos)* | 55.4% | 78.5% |" in md
+    assert "gctn-lite (step 77); tvf" in md and "data abc123, 3 demos per training task" in md
+    assert "this run's episodes are the first 1 per task of them" in md
+    assert "gifs/gctn/stack-stair-0.gif" in md and "gifs/tvf-large/stack-stair-0.gif" in md
+    assert str(weights) not in md and "tvf experiment --" not in md
+
+
+def test_quickstart_header_without_a_record():
+    from tvf.experiment.quickstart import quickstart_meta
+    from tvf.tasks import get_task
+
+    meta = quickstart_meta(["gctn", "tvf-large"], [get_task("put-t")], "put-t", 5, 1, 2, 90.0, {})
+    assert (
+        meta["weights"].startswith("gctn-lite + vf-lite; tvf ")
+        and "(no provenance record)" in meta["weights"]
+    )
+    assert (
+        meta["run"]
+        == "GCTN and TVF-L on the same 5 episodes: 5 per task on put-t, seeds 1, 3, 5, … (validation range)"
+    )
+    assert meta["planner"].startswith("TVF-L: K=3, depth 3, ") and "proposals" in meta["planner"]
+    assert meta["shipped evaluation"] == "none recorded" and meta["wall time"] == "1.5 min with 2 workers"
 
 
 def test_missing_shipped_weights_and_wrong_checkpoints_are_one_line_errors(

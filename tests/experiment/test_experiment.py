@@ -38,6 +38,8 @@ def test_every_stage_writes_its_outputs(experiment):
     assert provenance["experiment"]["preset"] == "smoke"
     assert set(provenance["results"]) == {"gctn", "tvf-large"}
     assert provenance["results"]["gctn"]["unseen"]["episodes"] == 1
+    assert [r["task"] for r in provenance["task_results"]["tvf-large"]] == ["stack-stair"]  # per task too
+    assert report.read_text().startswith("# tvf experiment: smoke models, 1 demo per training task")
     model, ckpt = load_model(out / "weights" / "gctn-smoke.safetensors", "gctn")  # named after its preset
     assert ckpt.optimizer is None and ckpt.step == 2
     assert provenance["models"]["vf"]["sha256"]["vf-smoke.safetensors"] == sha256_file(

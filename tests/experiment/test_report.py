@@ -89,22 +89,27 @@ def test_paper_row_under_the_unseen_average():
     md = report_markdown(fake_summaries(), META)
     assert md_row(md, "*paper (10 demos)*") == ["–", "55.4%", "78.5%", "–"]
     assert md.index("*unseen average*") < md.index("*paper (10 demos)*") < md.index("*training average*")
-    assert PAPER_UNSEEN_10_DEMOS == {"gctn": 0.554, "tvf-large": 0.785}
-    assert "only published numbers" in md
+    assert PAPER_UNSEEN_10_DEMOS == {"gctn": 0.554, "tvf-small": 0.715, "tvf-large": 0.785}
+    assert "GCTN 55.4%, TVF-S 71.5%, TVF-L 78.5%" in md  # the note is written from the same numbers
 
 
 def test_progress_table_and_images():
-    gifs = {UNSEEN[0]: "gifs/a b.gif", TRAIN[0]: "gifs/train.gif"}
+    gifs = {
+        UNSEEN[0]: {"tvf-large": "gifs/a b.gif", "gctn": "gifs/g.gif"},
+        TRAIN[0]: {"gctn": "gifs/train.gif"},
+    }
     md = report_markdown(fake_summaries(), META, gifs=gifs, chart="success.png")
     progress = md[md.index("## Mean progress") :]
     assert md_row(progress, UNSEEN[0]) == ["100.0%", "50.0%", "**90.0%**", "50.0%"]
     assert "](<success.png>)" in md and "](<gifs/a b.gif>)" in md
     assert "gifs/train.gif" not in md  # only unseen tasks get an episode
-    assert "TVF-L episode (left: real; right: imagined best path)" in md
+    assert md.index("gifs/g.gif") < md.index("gifs/a b.gif")  # in method order: GCTN, then TVF-L
+    assert f"*TVF-L on {UNSEEN[0]}: the real observation (green), the imagined best path" in md
+    assert f"*GCTN on {UNSEEN[0]}: the real observation (green) and the goal (grey)" in md
 
 
 def test_html_is_self_contained_and_escaped():
-    page = report_html(fake_summaries(), META, gifs={UNSEEN[0]: "x.gif"}, chart="success.png")
+    page = report_html(fake_summaries(), META, gifs={UNSEEN[0]: {"tvf-large": "x.gif"}}, chart="success.png")
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
     assert "<table" in page and "<style>" in page and "<script" not in page and "http" not in page
     assert "odd&lt;task&gt;&amp;" in page and ODD not in page
@@ -115,7 +120,7 @@ def test_html_is_self_contained_and_escaped():
 
 
 def test_write_report_files(tmp_path):
-    md, page = write_report(tmp_path / "rep", fake_summaries(), META, gifs={UNSEEN[0]: "g.gif"})
+    md, page = write_report(tmp_path / "rep", fake_summaries(), META, gifs={UNSEEN[0]: {"gctn": "g.gif"}})
     out = tmp_path / "rep"
     assert md == out / "report.md" and page == out / "report.html"
     assert md.read_text().startswith("# TVF experiment") and page.read_text().startswith("<!DOCTYPE html>")

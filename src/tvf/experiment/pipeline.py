@@ -26,16 +26,16 @@ from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
-from tvf.evaluate.recording import record_episode
+from tvf.evaluate.recording import RecordedEpisode, record_episode
 from tvf.experiment.config import RECIPE_FLAGS, ExperimentConfig
-from tvf.experiment.report import write_report
+from tvf.experiment.report import plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, read_json
-from tvf.policies import PolicySpec, make_policy
+from tvf.policies import PolicySpec, label, make_policy
 from tvf.sim.factory import sim_env
 from tvf.train.registry import MODELS, with_recipe
 from tvf.train.trainer import TrainConfig, train
-from tvf.viz.plan import episode_gif
+from tvf.viz.recorded import episode_gif
 from tvf.weights import PROVENANCE, WEIGHTS_DIR
 
 
@@ -118,9 +118,11 @@ def stage_eval(cfg: ExperimentConfig) -> None:
 
 
 def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):
-    """Run one recorded episode in the simulator and write its GIF; returns the episode result."""
-    result, steps = record_episode(policy, sim_env(task), seed, task.horizon + step_slack)
-    episode_gif(path, steps)
+    """Run one recorded episode in the simulator and write its labelled GIF; returns the episode result."""
+    horizon = task.horizon + step_slack
+    result, steps = record_episode(policy, sim_env(task), seed, horizon)
+    episode = RecordedEpisode(task.name, seed, label(policy.name), task.n_blocks, horizon, result.success)
+    episode_gif(path, episode, steps)
     return result
 
 
@@ -160,8 +162,9 @@ def _meta(cfg: ExperimentConfig) -> dict:
 def stage_report(cfg: ExperimentConfig) -> tuple[Path, Path]:
     gifs = {}
     for gif in sorted((cfg.out / "gifs").glob("*-0.gif")):
-        gifs[gif.name[: -len("-0.gif")]] = str(gif.relative_to(cfg.out))
-    return write_report(cfg.out, _summaries(cfg), _meta(cfg), gifs)
+        gifs[gif.name[: -len("-0.gif")]] = {"tvf-large": str(gif.relative_to(cfg.out))}
+    title = f"tvf experiment: {cfg.preset} models, {plural(cfg.demos, 'demo')} per training task"
+    return write_report(cfg.out, _summaries(cfg), _meta(cfg), gifs, title)
 
 
 def stage_weights(cfg: ExperimentConfig) -> Path:
@@ -173,7 +176,9 @@ def stage_weights(cfg: ExperimentConfig) -> Path:
         ship_model(cfg.out / kind, kind, out)
     record = read_json(out / PROVENANCE, "run the weights stage again")
     table = cfg.task_table()
-    record["results"] = {m: group_results(summary, table) for m, summary in _summaries(cfg).items()}
+    summaries = _summaries(cfg)
+    record["results"] = {m: group_results(summary, table) for m, summary in summaries.items()}
+    record["task_results"] = {m: summary["tasks"] for m, summary in summaries.items()}
     atomic_write_json(out / PROVENANCE, record)
     write_model_card(out)
     return out

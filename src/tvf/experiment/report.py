@@ -2,6 +2,8 @@
 self-contained HTML page), a grouped bar chart, and example episodes.
 
 Input is one summary per method, exactly as :func:`tvf.evaluate.closed_loop.summarise` returns it.
+Given the shipped weights' provenance record (:func:`tvf.weights.provenance`), the report also puts
+their recorded evaluation beside the run's numbers and the paper's (the quick start's comparison).
 """
 
 from __future__ import annotations
@@ -15,27 +17,40 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from tvf import __version__
 from tvf.evaluate.closed_loop import wilson
 from tvf.io import atomic_write_bytes
 from tvf.policies import METHODS, label
+from tvf.seeds import seed_range
 from tvf.tasks import resolve_tasks
 
 METHOD_ORDER = tuple(METHODS)
 """Column order (the method registry's); other method names follow in the order given."""
 
-PAPER_UNSEEN_10_DEMOS = {"gctn": 0.554, "tvf-large": 0.785}
-"""The paper's only published numbers (Wu et al., IROS 2022): average success on the unseen tasks with
-10 demonstrations per task; its TVF is the full planner, compared here with ``tvf-large``."""
+PAPER_UNSEEN_10_DEMOS = {"gctn": 0.554, "tvf-small": 0.715, "tvf-large": 0.785}
+"""The paper's numbers (Wu et al., IROS 2022; full-size networks), the one copy in the code: average
+success on the 8 unseen tasks with 10 demonstrations per task (docs/results.md)."""
+PAPER_LABEL = "paper (10 demos)"
 
-PAPER_NOTE = (
-    "The paper's only published numbers are the average success on the unseen tasks at 10 demos: "
-    "GCTN 55.4% and TVF 78.5% (TVF = the full planner, shown under TVF-L)."
-)
+
+def paper_note() -> str:
+    """One sentence naming the paper's numbers, written from :data:`PAPER_UNSEEN_10_DEMOS`."""
+    cells = ", ".join(f"{label(m)} {100 * v:.1f}%" for m, v in PAPER_UNSEEN_10_DEMOS.items())
+    return (
+        "The paper (Wu et al., IROS 2022, full-size networks) reports the average success on the unseen "
+        f"tasks at 10 demos per task: {cells}; no per-task or training-task table."
+    )
+
+
 TABLE_NOTE = (
     "Success rate with its Wilson 95% interval in percent; the best method per row (not counting the "
     "oracle) in bold."
 )
-GIF_CAPTION = "TVF-L episode (left: real; right: imagined best path)"
+GIF_CAPTIONS = {
+    "tvf": "the real observation (green), the imagined best path of each decision (blue), the goal (grey); "
+    "colour over height, every step labelled",
+    "other": "the real observation (green) and the goal (grey); colour over height, every step labelled",
+}
 MISSING = "–"
 PARTIAL_NOTE = "\\* averaged over the tasks this method was evaluated on only (fewer than the group)."
 GROUPS = (("unseen", "Unseen tasks", "unseen average"), ("train", "Training tasks", "training average"),
@@ -134,7 +149,7 @@ def paper_row(methods: list[str]) -> Row:
     cells = [
         f"{100 * PAPER_UNSEEN_10_DEMOS[m]:.1f}%" if m in PAPER_UNSEEN_10_DEMOS else MISSING for m in methods
     ]
-    return ("paper", "paper (10 demos)", cells)
+    return ("paper", PAPER_LABEL, cells)
 
 
 def table_rows(summaries: dict[str, dict], key: str) -> list[Row]:
@@ -165,6 +180,156 @@ def meta_value(value: object) -> str:
     return str(value)
 
 
+# ----------------------------------------------------------------------------------------------- shipped
+
+
+def weights_text(shipped: dict, version: str = __version__) -> str:
+    """The shipped weights by name, step and data: ``gctn-lite (step 14000) + vf-lite (step 3000); tvf
+    0.1.0; data a346bb23c13c64a6, 10 demos per training task``."""
+    models = shipped.get("models", {})
+    names = " + ".join(
+        f"{Path(m.get('file', kind)).stem} (step {m.get('step', '?')})" for kind, m in models.items()
+    )
+    prints = sorted({str(m["data_fingerprint"]) for m in models.values() if m.get("data_fingerprint")})
+    demos = shipped.get("experiment", {}).get("demos")
+    data = f"; data {', '.join(prints)}" if prints else ""
+    data += f", {demos} demos per training task" if demos is not None and data else ""
+    return f"{names or 'shipped weights'}; tvf {version}{data}"
+
+
+def shipped_eval_text(shipped: dict) -> str:
+    """How the shipped weights were evaluated: ``20 episodes per task, seeds 1, 3, 5, … (validation)``."""
+    exp = shipped.get("experiment", {})
+    episodes, start = exp.get("episodes"), exp.get("seed_start")
+    if episodes is None or start is None:
+        return "the evaluation recorded with them"
+    seeds = f"{start}, {start + 2}, {start + 4}, …"
+    return f"{episodes} episodes per task, seeds {seeds} ({seed_range(start)} range)"
+
+
+def plural(n: int, word: str) -> str:
+    """``1 episode``, ``5 episodes``."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def shipped_label(shipped: dict) -> str:
+    """The row label of the shipped weights' numbers."""
+    episodes = shipped.get("experiment", {}).get("episodes")
+    return f"shipped weights ({plural(episodes, 'episode')} per task)" if episodes else "shipped weights"
+
+
+def reported_record(record: dict) -> dict:
+    """The shipped record the reports show: the test-range evaluations recorded with the weights
+    (``evaluations``, one per method: the entry named by the method's label) in place of the experiment's
+    own results, when there are any; the record as it is otherwise."""
+    chosen = {}
+    for entry in record.get("evaluations", []):
+        if entry.get("seed_range") == "test" and entry["name"] == label(entry["method"]):
+            chosen[entry["method"]] = entry
+    if not chosen:
+        return record
+    first = next(iter(chosen.values()))
+    experiment = {**record.get("experiment", {}), "episodes": first["episodes"]}
+    experiment["seed_start"] = first["seed_start"]
+    per_task = {m: [{"task": t, **r} for t, r in e["tasks"].items()] for m, e in chosen.items()}
+    results = {m: e["results"] for m, e in chosen.items()}
+    return {**record, "experiment": experiment, "results": results, "task_results": per_task}
+
+
+def shipped_entry(shipped: dict, method: str, split: str) -> dict | None:
+    """The shipped weights' recorded average of ``method`` over ``split`` (unseen | train | all), or None."""
+    return shipped.get("results", {}).get(method, {}).get(split)
+
+
+def comparison_rows(summaries: dict[str, dict], shipped: dict | None) -> tuple[list[str], list[Row]]:
+    """The claim in one table: for each task group the run has, its average success beside the shipped
+    weights' and (unseen tasks) the paper's, one column per method of the run."""
+    methods = ordered_methods(summaries)
+    groups = task_groups(summaries)
+    rows: list[Row] = []
+    for split, title, _ in GROUPS[:2]:
+        if not groups[split]:
+            continue
+        entries = [group_average(summaries[m], groups[split]) for m in methods]
+        per_task = max((e["episodes"] // max(e["tasks"], 1) for e in entries if e), default=0)
+        n, of = len(groups[split]), len(resolve_tasks(split))
+        ran = f"this run ({plural(per_task, 'episode')} per task" + (
+            f", {n} of the {of} tasks)" if n < of else ")"
+        )
+        rows.append(("group", f"{title}: average success", [""] * len(methods)))
+        rows.append(("run", ran, [success_cell(e) for e in entries]))
+        if shipped:
+            cells = [success_cell(shipped_entry(shipped, m, split)) for m in methods]
+            rows.append(("shipped", shipped_label(shipped), cells))
+        if split == "unseen":
+            rows.append(paper_row(methods))
+    return methods, rows
+
+
+def shipped_rows(shipped: dict) -> tuple[list[str], list[Row]]:
+    """Every method of the shipped weights' recorded evaluation: per task when the record has it
+    (``task_results``), and the group averages with their intervals, the paper's under the unseen one."""
+    results = shipped.get("results", {})
+    methods = ordered_methods(results)
+    per_task = shipped.get("task_results")
+    if per_task:
+        return methods, table_rows({m: {"tasks": per_task.get(m, [])} for m in methods}, "success")
+    rows: list[Row] = []
+    for split, name in (("unseen", "unseen average"), ("train", "training average"), ("all", "all tasks")):
+        entries = [shipped_entry(shipped, m, split) for m in methods]
+        if any(entries):
+            rows.append(metric_row("average", name, methods, entries, "success"))
+        if split == "unseen":
+            rows.append(paper_row(methods))
+    return methods, rows
+
+
+# ----------------------------------------------------------------------------------------------- blocks
+
+Block = tuple
+"""A piece of the report, rendered alike in Markdown and HTML: ("h2", text), ("note", text),
+("meta", dict), ("table", header, rows), ("image", path, caption), ("figures", [(path, caption), ...])."""
+
+
+def gif_caption(task: str, method: str) -> str:
+    kind = "tvf" if method.startswith("tvf") else "other"
+    return f"{label(method)} on {task}: {GIF_CAPTIONS[kind]}"
+
+
+def report_blocks(
+    summaries: dict[str, dict], meta: dict, gifs: dict[str, dict[str, str]] | None = None,
+    chart: str | None = None, shipped: dict | None = None,
+) -> list[Block]:  # fmt: skip
+    """The report's content in order; ``gifs`` maps task -> method -> path, paths relative to the report."""
+    header = ["task", *(label(m) for m in ordered_methods(summaries))]
+    blocks: list[Block] = [("meta", meta)]
+    if shipped is not None:
+        methods, rows = comparison_rows(summaries, shipped)
+        blocks += [("h2", "The comparison"), ("table", ["", *(label(m) for m in methods)], rows),
+                   ("note", f"Shipped weights: {shipped_eval_text(shipped)}. " + paper_note())]  # fmt: skip
+    if chart:
+        blocks += [("image", chart, "success per method")]
+    if shipped is not None and shipped.get("results"):
+        methods, rows = shipped_rows(shipped)
+        note = f"{weights_text(shipped)}; {shipped_eval_text(shipped)}. {TABLE_NOTE}"
+        blocks += [("h2", "The shipped weights' recorded evaluation"), ("note", note),
+                   ("table", ["", *(label(m) for m in methods)], rows)]  # fmt: skip
+    success = table_rows(summaries, "success")
+    title = "Success per task" + (" (this run)" if shipped is not None else "")
+    blocks += [("h2", title), ("note", TABLE_NOTE), ("table", header, success), ("note", paper_note())]
+    if any(c.endswith("\\*") for _, _, cells in success for c in cells):
+        blocks.append(("note", PARTIAL_NOTE))
+    blocks += [("h2", "Mean progress"), ("note", "Fraction of goal blocks placed at the end of an episode."),
+               ("table", header, table_rows(summaries, "progress"))]  # fmt: skip
+    episodes = [(t, gifs[t]) for t in task_groups(summaries)["unseen"] if gifs and gifs.get(t)]
+    if episodes:
+        blocks.append(("h2", "Episodes"))
+        for task, by_method in episodes:
+            figures = [(by_method[m], gif_caption(task, m)) for m in ordered_methods(by_method)]
+            blocks += [("h3", task), ("figures", figures)]
+    return blocks
+
+
 # ----------------------------------------------------------------------------------------------- Markdown
 
 
@@ -187,44 +352,55 @@ def md_image(alt: str, path: str) -> str:
     return f"![{md_text(alt)}](<{path}>)"
 
 
+def md_block(block: Block) -> list[str]:
+    """A block as Markdown lines."""
+    kind = block[0]
+    if kind == "meta":
+        return ["| run | |", "|---|---|"] + [
+            f"| {md_text(str(k))} | {md_text(meta_value(v))} |" for k, v in block[1].items()
+        ]
+    if kind in ("h2", "h3"):
+        return [f"{'#' * int(kind[1])} {md_text(block[1])}"]
+    if kind == "note":
+        return [block[1]]
+    if kind == "table":
+        return md_table(block[1], block[2])
+    if kind == "image":
+        return [md_image(block[2], block[1])]
+    lines = []
+    for path, caption in block[1]:
+        lines += [md_image(caption, path), "", f"*{md_text(caption)}*", ""]
+    return lines[:-1]
+
+
 def report_markdown(
-    summaries: dict[str, dict], meta: dict, gifs: dict[str, str] | None = None, chart: str | None = None
-) -> str:
-    """The report as Markdown; ``gifs`` (task -> path) and ``chart`` are paths relative to the report."""
-    header = ["task", *(label(m) for m in ordered_methods(summaries))]
-    lines = ["# TVF experiment", "", "| run | |", "|---|---|"]
-    lines += [f"| {md_text(str(k))} | {md_text(meta_value(v))} |" for k, v in meta.items()]
-    lines += ["", "## Success", "", TABLE_NOTE, ""]
-    success = table_rows(summaries, "success")
-    lines += md_table(header, success)
-    lines += ["", PAPER_NOTE]
-    if any(c.endswith("\\*") for _, _, cells in success for c in cells):
-        lines += ["", PARTIAL_NOTE]
-    lines += ["", "## Mean progress", "", "Fraction of goal blocks placed at the end of an episode.", ""]
-    lines += md_table(header, table_rows(summaries, "progress"))
-    if chart:
-        lines += ["", "## Chart", "", md_image("success per method", chart)]
-    episodes = [(t, gifs[t]) for t in task_groups(summaries)["unseen"] if gifs and t in gifs]
-    if episodes:
-        lines += ["", "## Episodes"]
-        for task, path in episodes:
-            lines += ["", f"### {md_text(task)}", "", md_image(f"{task}: {GIF_CAPTION}", path), "",
-                      f"*{GIF_CAPTION}*"]  # fmt: skip
+    summaries: dict[str, dict], meta: dict, gifs: dict[str, dict[str, str]] | None = None,
+    chart: str | None = None, title: str = "TVF experiment", shipped: dict | None = None,
+) -> str:  # fmt: skip
+    """The report as Markdown; ``gifs`` (task -> method -> path) and ``chart`` are paths relative to it."""
+    lines = [f"# {md_text(title)}"]
+    for block in report_blocks(summaries, meta, gifs, chart, shipped):
+        lines += ["", *md_block(block)]
     return "\n".join(lines) + "\n"
 
 
 # ----------------------------------------------------------------------------------------------- HTML
 
 CSS = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1400px; color: #222; padding: 0 1em; }
 table { border-collapse: collapse; margin: 1em 0; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; white-space: nowrap; }
 th:first-child, td:first-child { text-align: left; }
 tr.group td { background: #eef; font-weight: bold; text-align: left; }
-tr.average td, tr.paper td { background: #f7f7f7; font-style: italic; }
+tr.average td, tr.paper td, tr.shipped td { background: #f7f7f7; font-style: italic; }
+tr.run td { font-weight: bold; }
 table.meta td { text-align: left; white-space: normal; }
+table.meta td:first-child { font-weight: bold; white-space: nowrap; }
 figure { margin: 1em 0; } img { max-width: 100%; }
-.note { color: #555; font-size: 0.9em; }
+.episodes { display: flex; flex-wrap: wrap; gap: 1em; align-items: flex-start; }
+.episodes figure { flex: 0 1 auto; min-width: 0; margin: 0; display: table; }
+.episodes figcaption { display: table-caption; caption-side: bottom; }
+figcaption, .note { color: #555; font-size: 0.9em; }
 """
 
 
@@ -255,35 +431,36 @@ def html_figure(path: str, caption: str) -> str:
     return f'<figure><img src="{src}" alt="{cap}"><figcaption>{cap}</figcaption></figure>'
 
 
+def html_block(block: Block) -> list[str]:
+    """A block as HTML lines."""
+    kind = block[0]
+    if kind == "meta":
+        rows = [
+            f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(meta_value(v))}</td></tr>"
+            for k, v in block[1].items()
+        ]
+        return ['<table class="meta">', *rows, "</table>"]
+    if kind in ("h2", "h3"):
+        return [f"<{kind}>{html.escape(block[1])}</{kind}>"]
+    if kind == "note":
+        return [f'<p class="note">{html.escape(block[1].replace(chr(92), ""))}</p>']
+    if kind == "table":
+        return html_table(block[1], block[2])
+    if kind == "image":
+        return [html_figure(block[1], block[2])]
+    return ['<div class="episodes">', *(html_figure(p, c) for p, c in block[1]), "</div>"]
+
+
 def report_html(
-    summaries: dict[str, dict], meta: dict, gifs: dict[str, str] | None = None, chart: str | None = None
-) -> str:
+    summaries: dict[str, dict], meta: dict, gifs: dict[str, dict[str, str]] | None = None,
+    chart: str | None = None, title: str = "TVF experiment", shipped: dict | None = None,
+) -> str:  # fmt: skip
     """The report as one self-contained HTML page (inline CSS, no scripts, images by relative path)."""
-    header = ["task", *(label(m) for m in ordered_methods(summaries))]
     out = ["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
-           "<title>TVF experiment</title>", f"<style>{CSS}</style>", "</head>", "<body>",
-           "<h1>TVF experiment</h1>", '<table class="meta">']  # fmt: skip
-    out += [
-        f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(meta_value(v))}</td></tr>"
-        for k, v in meta.items()
-    ]
-    out += ["</table>", "<h2>Success</h2>", f'<p class="note">{html.escape(TABLE_NOTE)}</p>']
-    success = table_rows(summaries, "success")
-    out += html_table(header, success)
-    out.append(f'<p class="note">{html.escape(PAPER_NOTE)}</p>')
-    if any(c.endswith("\\*") for _, _, cells in success for c in cells):
-        out.append(f'<p class="note">{html.escape(PARTIAL_NOTE.replace(chr(92), ""))}</p>')
-    out += [
-        "<h2>Mean progress</h2>",
-        '<p class="note">Fraction of goal blocks placed at the end of an episode.</p>',
-    ]
-    out += html_table(header, table_rows(summaries, "progress"))
-    if chart:
-        out += ["<h2>Chart</h2>", html_figure(chart, "success per method")]
-    episodes = [(t, gifs[t]) for t in task_groups(summaries)["unseen"] if gifs and t in gifs]
-    if episodes:
-        out.append("<h2>Episodes</h2>")
-        out += [f"<h3>{html.escape(t)}</h3>\n{html_figure(p, GIF_CAPTION)}" for t, p in episodes]
+           f"<title>{html.escape(title)}</title>", f"<style>{CSS}</style>", "</head>", "<body>",
+           f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
+    for block in report_blocks(summaries, meta, gifs, chart, shipped):
+        out += html_block(block)
     return "\n".join(out + ["</body>", "</html>"]) + "\n"
 
 
@@ -303,22 +480,24 @@ def chart_groups(summaries: dict[str, dict]) -> list[tuple[str, dict[str, dict |
     return [g for g in out if g[0] == "unseen average" or any(e is not None for e in g[1].values())]
 
 
-def paper_marks(ax, methods: list[str], width: float) -> None:
-    """The paper's unseen averages as short black lines with a point, over each method's slot in the
-    "unseen average" group (x = 0), labelled "paper"."""
+def reference_marks(
+    ax, methods: list[str], width: float, values: dict[str, float], name: str, style: str
+) -> None:
+    """Reference numbers (the paper's, the shipped weights') as short lines with a point over each
+    method's slot in the "unseen average" group (x = 0), labelled ``name``."""
     for i, m in enumerate(methods):
-        if m not in PAPER_UNSEEN_10_DEMOS:
+        if m not in values:
             continue
-        x, y = (i - (len(methods) - 1) / 2) * width, PAPER_UNSEEN_10_DEMOS[m]
-        first = not any(line.get_label() == "paper" for line in ax.lines)
-        ax.hlines(y, x - width / 2, x + width / 2, colors="black", lw=1.5)
-        ax.plot([x], [y], "kD", ms=4, label="paper" if first else None)
-        ax.annotate("paper", (x, y), xytext=(0, 4), textcoords="offset points", ha="center", fontsize=7)
+        x, y = (i - (len(methods) - 1) / 2) * width, values[m]
+        first = not any(line.get_label() == name for line in ax.lines)
+        ax.hlines(y, x - width / 2, x + width / 2, colors=style[0], lw=1.5)
+        ax.plot([x], [y], style, ms=4, label=name if first else None)
+        ax.annotate(name, (x, y), xytext=(0, 4), textcoords="offset points", ha="center", fontsize=7)
 
 
-def success_chart(summaries: dict[str, dict], path: Path) -> Path:
+def success_chart(summaries: dict[str, dict], path: Path, shipped: dict | None = None) -> Path:
     """Grouped bar chart of success per method (Wilson 95% error bars) with the paper's unseen averages
-    as labelled markers; written atomically as a PNG at ``path``."""
+    (and the shipped weights', when given) as labelled markers; written atomically as a PNG at ``path``."""
 
     methods = ordered_methods(summaries)
     groups = chart_groups(summaries)
@@ -335,11 +514,14 @@ def success_chart(summaries: dict[str, dict], path: Path) -> Path:
         err = [[max(0.0, e["success"] - e["ci95"][0]) for _, e in pts],
                [max(0.0, e["ci95"][1] - e["success"]) for _, e in pts]]  # fmt: skip
         ax.bar([x for x, _ in pts], ys, width, yerr=err, capsize=2, ecolor="0.4", label=label(m))
-    paper_marks(ax, methods, width)
+    reference_marks(ax, methods, width, PAPER_UNSEEN_10_DEMOS, "paper", "kD")
+    if shipped:
+        values = {m: e["success"] for m in methods if (e := shipped_entry(shipped, m, "unseen")) is not None}
+        reference_marks(ax, methods, width, values, "shipped", "ro")
     ax.set_xticks(range(len(groups)), [name for name, _ in groups], rotation=30, ha="right", fontsize=8)
     ax.set_ylim(0, 1.3)
     ax.set_ylabel("success (Wilson 95% interval)")
-    ax.legend(fontsize=8, ncols=len(methods) + 1, loc="upper center", frameon=False)
+    ax.legend(fontsize=8, ncols=len(methods) + 2, loc="upper center", frameon=False)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -351,16 +533,18 @@ def success_chart(summaries: dict[str, dict], path: Path) -> Path:
 
 
 def write_report(
-    out_dir: Path, summaries: dict[str, dict], meta: dict, gifs: dict[str, str] | None = None
-) -> tuple[Path, Path]:
+    out_dir: Path, summaries: dict[str, dict], meta: dict, gifs: dict[str, dict[str, str]] | None = None,
+    title: str = "TVF experiment", shipped: dict | None = None,
+) -> tuple[Path, Path]:  # fmt: skip
     """Write ``success.png`` (when any summary has tasks), ``report.md`` and ``report.html`` into
-    ``out_dir``, each atomically; ``gifs`` maps task -> path relative to ``out_dir``."""
+    ``out_dir``, each atomically; ``gifs`` maps task -> method -> path relative to ``out_dir``;
+    ``shipped`` is a provenance record whose results go beside the run's."""
     out_dir = Path(out_dir)
     chart = None
     if any(s.get("tasks") for s in summaries.values()):
-        success_chart(summaries, out_dir / "success.png")
+        success_chart(summaries, out_dir / "success.png", shipped)
         chart = "success.png"
     md, page = out_dir / "report.md", out_dir / "report.html"
-    atomic_write_bytes(md, report_markdown(summaries, meta, gifs, chart).encode())
-    atomic_write_bytes(page, report_html(summaries, meta, gifs, chart).encode())
+    atomic_write_bytes(md, report_markdown(summaries, meta, gifs, chart, title, shipped).encode())
+    atomic_write_bytes(page, report_html(summaries, meta, gifs, chart, title, shipped).encode())
     return md, page

@@ -42,8 +42,11 @@ def save_png(path: str | Path, image: np.ndarray) -> None:
     atomic_write_bytes(path, iio.imwrite("<bytes>", np.asarray(image, dtype=np.uint8), extension=".png"))
 
 
-def save_gif(path: str | Path, frames: list[np.ndarray], fps: float = 1.0) -> None:
+def save_gif(path: str | Path, frames: list[np.ndarray], fps: float = 1.0, hold_last: float = 1.0) -> None:
+    """Write frames of equal size as a looping GIF, atomically; the last shows ``hold_last`` times as long."""
+    durations = [1000 / fps] * len(frames)
+    durations[-1] *= hold_last
     data = iio.imwrite(
-        "<bytes>", np.stack(frames).astype(np.uint8), extension=".gif", duration=1000 / fps, loop=0
+        "<bytes>", np.stack(frames).astype(np.uint8), extension=".gif", duration=durations, loop=0
     )
     atomic_write_bytes(path, data)
