@@ -7,6 +7,7 @@ from typing import Annotated
 
 import tyro
 
+from tvf.cli.common import check_output_dir
 from tvf.train.trainer import TrainConfig
 
 
@@ -37,9 +38,11 @@ class TrainVf(TrainConfig):
 
 def run_training(cfg: TrainConfig, kind: str) -> None:
     from tvf.runs import RunDir
-    from tvf.train.registry import training_job  # lazy: it imports the data pipeline and the simulator
-    from tvf.train.trainer import train
+    from tvf.train.registry import training_job, with_recipe  # lazy: they import the data pipeline
+    from tvf.train.trainer import check_config, train
 
+    check_config(with_recipe(cfg, kind))  # bad flags and an unwritable --out: one line, before any data
+    check_output_dir(cfg.out)
     resolved, job = training_job(cfg, kind)
     val = train(resolved, job)
     shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"
