@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from tvf.sim.success import TOLERANCE, evaluate_structure, match_targets, pose_matches
+from tvf.sim.success import TOLERANCE, Tolerance, evaluate_structure, match_targets, pose_matches
 
 TARGETS = np.array([[0.5, 0.0, 0.025], [0.5, 0.05, 0.025]])
 YAWS = np.array([0.3, 0.3])
@@ -79,3 +79,24 @@ def test_a_block_turned_minus_forty_degrees_is_not_placed():
     """The issue's example: without the absolute value, -40 degrees counted as placed."""
     p = evaluate_structure(TARGETS, YAWS + math.radians(-40), TARGETS, YAWS)
     assert p.matched == 0 and not p.success
+
+
+def test_tolerances_are_strict_and_come_from_the_tolerance_given():
+    """Exactly representable numbers: an error equal to the tolerance is outside it, and a custom
+    Tolerance reaches the matching (evaluate_structure passes it on)."""
+    tol = Tolerance(xy=0.25, z=0.125, yaw=0.25)
+    target, yaw0 = np.array([[0.5, 0.0, 0.0]]), np.array([0.0])
+    for block, yaw in (([0.75, 0.0, 0.0], 0.0), ([0.5, 0.0, 0.125], 0.0), ([0.5, 0.0, 0.0], 0.25)):
+        assert not pose_matches(np.array([block]), np.array([yaw]), target, yaw0, tol).any()
+    assert pose_matches(np.array([[0.74, 0.0, 0.12]]), np.array([0.24]), target, yaw0, tol).all()
+    off = TARGETS + [0.02, 0, 0]  # 2 cm off: placed under a 3 cm tolerance only
+    assert not evaluate_structure(off, YAWS, TARGETS, YAWS).success
+    assert evaluate_structure(off, YAWS, TARGETS, YAWS, Tolerance(xy=0.03)).success
+
+
+def test_a_single_block_matches_and_an_unmatched_block_gets_minus_one():
+    assert evaluate_structure(TARGETS[:1], YAWS[:1], TARGETS[:1], YAWS[:1]).block_to_target == (0,)
+    far = TARGETS + [[0.1, 0, 0], [0, 0, 0]]
+    p = evaluate_structure(far, YAWS, TARGETS, YAWS)
+    assert p.block_to_target == (-1, 1) and p.matched == 1 and p.fraction == 0.5
+    assert match_targets(np.zeros((2, 0), bool)).tolist() == [-1, -1]

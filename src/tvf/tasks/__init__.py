@@ -174,7 +174,7 @@ def check_limits(task: Task, where: str, ws: Workspace = WORKSPACE) -> None:
         problem = placement_problem(centres[: n_cells + i + 1], radii[: n_cells + i + 1], ws)
         if problem is not None:
             x, y, layer = task.targets[i]
-            what = "it with the base" + (" and the targets before it" if i else "")
+            what = "it, the base and the targets before it" if i else "it and the base"
             message = _limit_message(problem, what, "move it nearer the base cells")
             raise TaskError(f"{where}: target {i} {[x, y, layer]} {message}")
 
