@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test test-all lint quickstart reproduce bench clean
+.PHONY: venv test test-all lint quickstart reproduce bench mutate clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -39,5 +39,14 @@ bench: $(STAMP)
 	$(PY) benchmarks/sim.py
 	$(PY) benchmarks/planner.py
 
+# Mutation testing (mutmut, the optional `mutate` extra; config in pyproject.toml) of the success rule, the
+# actions, the proposals and the search: hours of CPU, not in CI. Narrow it with a mutant pattern, e.g.
+# `make mutate MUTANTS='tvf.sim.success*'`. Results stay in mutants/; the score goes in docs/reliability.md.
+MUTANTS ?=
+mutate: $(STAMP)
+	$(PY) -m pip install -q -e ".[mutate]"
+	$(VENV)/bin/mutmut run --max-children 2 $(MUTANTS)
+	$(VENV)/bin/mutmut results
+
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) out mutants .pytest_cache .ruff_cache

@@ -11,6 +11,8 @@ Conventions (see docs/conventions.md):
   its world position is its **centre**. World -> pixel uses **floor**, the only rounding rule, so
   ``world_to_pixel(pixel_to_world(p)) == p`` exactly.
 * Heights are metres above the table (z - z_min).
+* Scenes are laid out inside the workspace shrunk by ``EDGE_MARGIN`` and inside the ``REACH`` ring
+  around the robot base (the world origin); task files are checked against both and the height range.
 * Yaw is the world rotation about +z, counter-clockwise seen from above. Because ``(col, row)``
   follows ``(x, y)``, a world yaw ``psi`` turns pixel coordinates ``(col, row)`` by the same matrix
   ``[[cos, -sin], [sin, cos]]``. (On a screen, where rows grow downwards, that looks clockwise.)
@@ -77,6 +79,12 @@ class Workspace:
 
 
 WORKSPACE = Workspace()
+
+REACH = (0.30, 0.72)
+"""The ring (m from the robot base at the world origin) in which the arm reaches the table: every base
+cell, block and target of a scene lies inside it."""
+EDGE_MARGIN = 0.02
+"""Every base cell, block and target of a scene keeps this far (m) inside the workspace edges."""
 
 
 def world_to_pixel(xy: np.ndarray, ws: Workspace = WORKSPACE) -> np.ndarray:

@@ -3,7 +3,8 @@
 Every output (images, JSON, checkpoints, episodes) is written to a hidden temporary file beside its
 final path and renamed into place, so a reader sees the old file or the new one, never a torn one.
 Append-only logs (``episodes.jsonl``, ``metrics.jsonl``, ``failures.jsonl``) are written a whole line
-at a time and read back tolerating a torn last line.
+at a time and read back tolerating a torn last line. Commands check their output folders and files
+here before any work (:func:`check_output_dir`, :func:`check_output_file`).
 """
 
 from __future__ import annotations
@@ -57,6 +58,44 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_write_json(path: str | Path, value: Any, indent: int = 1) -> None:
     """Write ``value`` as JSON (``default=str`` for paths), atomically."""
     atomic_write_bytes(path, json.dumps(value, indent=indent, default=str).encode())
+
+
+def _file_in_the_way(path: Path) -> Path | None:
+    """The first existing non-folder on the way to (or at) ``path``, or None."""
+    for part in (*reversed(path.parents), path):
+        if part.exists() and not part.is_dir():
+            return part
+    return None
+
+
+def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
+    """Create the folder ``path`` (and a probe file in it) or fail with one line naming ``flag``."""
+    path = Path(path)
+    blocker = _file_in_the_way(path)
+    if blocker is not None:
+        raise TvfError(
+            f"cannot write to output directory {path}: {blocker} is a file, not a folder; "
+            f"choose another {flag}"
+        )
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".tvf-write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise TvfError(
+            f"cannot write to output directory {path}: {exc.strerror}; choose another {flag}"
+        ) from None
+    return path
+
+
+def check_output_file(path: str | Path, flag: str) -> Path:
+    """Check, before any work, that the file ``path`` can be written (its folder is made if missing)."""
+    path = Path(path)
+    if path.is_dir():
+        raise TvfError(f"cannot write {path}: it is a folder; give {flag} a file name")
+    check_output_dir(path.parent, flag)
+    return path
 
 
 _REQUIRED = object()

@@ -5,6 +5,7 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
+import pytest
 from cli_run import run
 
 from tvf.envs import Env
@@ -55,16 +56,35 @@ def test_the_simulator_implements_the_env_protocol():
     assert isinstance(NoisyFactory()(get_task("stack-stair")), Env)
 
 
-def test_a_wrapped_environment_is_evaluated_through_the_same_loop(tmp_path):
+def _records(out) -> list[dict]:
+    return sorted(map(json.loads, (out / "episodes.jsonl").read_text().splitlines()), key=lambda r: r["seed"])
+
+
+@pytest.fixture(scope="module")
+def clean_gctn(tmp_path_factory):
+    """The shipped GCTN on two stack-stair episodes in the plain simulator, in this process."""
+    out = tmp_path_factory.mktemp("clean")
+    return out, evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 1, out)
+
+
+def test_a_wrapped_environment_is_evaluated_through_the_same_loop(tmp_path, clean_gctn):
     SEEN.clear()
     summary = evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 1, tmp_path, envs=NoisyFactory())
     assert SEEN == [1, 3] and summary["average"]["episodes"] == 2
-    evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 1, tmp_path / "clean")
-    noisy_actions = [json.loads(x)["actions"] for x in (tmp_path / "episodes.jsonl").read_text().splitlines()]
-    clean_actions = [
-        json.loads(x)["actions"] for x in (tmp_path / "clean" / "episodes.jsonl").read_text().splitlines()
-    ]
+    noisy_actions = [r["actions"] for r in _records(tmp_path)]
+    clean_actions = [r["actions"] for r in _records(clean_gctn[0])]
     assert noisy_actions != clean_actions  # the wrapper's images, not the simulator's, reached the policy
+
+
+@pytest.mark.slow
+def test_one_and_two_workers_give_identical_gctn_episodes(tmp_path, clean_gctn):
+    """The clean run again in two spawned workers (one torch thread each, where this process may use
+    more): the same actions, outcomes and summary. (The default run checks this with the oracle in
+    test_a_task_file_task_runs_in_worker_processes.)"""
+    summary = evaluate(PolicySpec("gctn"), ["stack-stair"], 2, 1, 2, tmp_path)
+    assert summary == clean_gctn[1]
+    records = _records(tmp_path)
+    assert records == _records(clean_gctn[0]) and len(records) == 2 and all(r["actions"] for r in records)
 
 
 def test_the_loop_stops_at_the_step_budget_and_sees_every_observation():
@@ -81,6 +101,9 @@ def test_a_task_file_task_runs_in_worker_processes(tmp_path):
     task = load_tasks(path).get("my-pair")
     summary = evaluate(PolicySpec("oracle"), [task], 2, 1, 2, tmp_path / "eval", envs=SimEnvFactory())
     assert summary["average"]["success"] == 1.0 and [r["task"] for r in summary["tasks"]] == ["my-pair"]
+    # worker-count determinism: the same episodes in this process give the same records, action by action
+    assert evaluate(PolicySpec("oracle"), [task], 2, 1, 1, tmp_path / "one") == summary
+    assert _records(tmp_path / "one") == _records(tmp_path / "eval")
 
 
 def test_tvf_eval_takes_an_environment_factory_by_name(tmp_path, capsys):

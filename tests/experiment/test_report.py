@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
+
+import numpy as np
 import pytest
 
 from tvf.evaluate.closed_loop import summarise, wilson
@@ -134,3 +138,83 @@ def test_write_report_without_tasks_has_no_chart(tmp_path):
     md, _ = write_report(tmp_path, {"gctn": summarise([], "gctn")}, {})
     assert not (tmp_path / "success.png").exists()
     assert "success.png" not in md.read_text()
+
+
+# ------------------------------------------------- report numbers recomputed from the episodes they summarise
+class CoinEnv:
+    """A scripted world: an episode succeeds after one step unless (seed + name length) % modulus == 0;
+    a failed episode's progress is (seed % 4) / 4."""
+
+    def __init__(self, task, modulus: int) -> None:
+        self.task, self.modulus, self.seed = task, modulus, 0
+        self.obs = {"color": np.zeros((4, 4, 3), np.uint8), "height": np.zeros((4, 4), np.float32)}
+
+    def reset(self, *, seed=None, options=None):
+        self.seed = seed
+        return self.obs, {"goal": self.obs, "progress": 0.0}
+
+    def step(self, action):
+        success = (self.seed + len(self.task.name)) % self.modulus != 0
+        progress = 1.0 if success else (self.seed % 4) / 4
+        info = {"success": success, "progress": progress, "steps": 1, "primitive": "ok"}
+        return self.obs, progress, success, not success, info
+
+    def oracle_action(self):
+        return np.zeros((2, 4))
+
+
+@dataclass(frozen=True)
+class CoinEnvs:
+    modulus: int = 3
+
+    def __call__(self, task):
+        return CoinEnv(task, self.modulus)
+
+
+def _table_cells(md: str, first_cell: str) -> list[list[str]]:
+    """The cells (bold marks removed) of every Markdown table row whose first cell is ``first_cell``."""
+    rows = []
+    for line in md.splitlines():
+        cells = [
+            c.strip().replace("**", "").removesuffix(" \\*") for c in line.strip().strip("|").split(" | ")
+        ]
+        if cells[0] == first_cell:
+            rows.append(cells[1:])
+    return rows
+
+
+def _expected_cells(records: list[dict]) -> tuple[str, str]:
+    k, n = sum(r["success"] for r in records), len(records)
+    lo, hi = wilson(k, n)
+    progress = np.mean([r["progress"] for r in records])
+    return f"{100 * k / n:.1f}% [{100 * lo:.0f}–{100 * hi:.0f}]", f"{100 * progress:.1f}%"
+
+
+def test_report_numbers_equal_the_episodes_they_summarise(tmp_path):
+    """Two evaluations (the scripted world with two failure rules, reported as two methods) through the real
+    evaluation and report: every task cell and the unseen average recomputed from episodes.jsonl."""
+    from tvf.evaluate.closed_loop import evaluate
+    from tvf.policies import PolicySpec
+
+    tasks = [*UNSEEN[:2], TRAIN[0]]
+    summaries, logs = {}, {}
+    for method, modulus in (("gctn", 3), ("tvf-large", 4)):
+        out = tmp_path / method
+        summaries[method] = evaluate(PolicySpec("oracle"), tasks, 6, 1, 1, out, envs=CoinEnvs(modulus))
+        logs[method] = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    md_path, _ = write_report(tmp_path / "report", summaries, META)
+    md = md_path.read_text()
+    methods = list(summaries)
+    for task in tasks:
+        success_cells, progress_cells = _table_cells(md, task)
+        for i, m in enumerate(methods):
+            records = [r for r in logs[m] if r["task"] == task]
+            assert len(records) == 6
+            assert (success_cells[i], progress_cells[i]) == _expected_cells(records), (task, m)
+    success_cells, _ = _table_cells(md, "*unseen average*")
+    for i, m in enumerate(methods):
+        unseen = [r for r in logs[m] if r["task"] in UNSEEN]
+        per_task = [np.mean([r["success"] for r in unseen if r["task"] == t]) for t in UNSEEN[:2]]
+        lo, hi = wilson(sum(r["success"] for r in unseen), len(unseen))
+        assert success_cells[i] == f"{100 * np.mean(per_task):.1f}% [{100 * lo:.0f}–{100 * hi:.0f}]"
+    assert any(len(set(_table_cells(md, t)[0])) == 2 for t in tasks)  # the two methods differ somewhere

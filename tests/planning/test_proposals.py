@@ -84,6 +84,30 @@ def test_kmeans_separates_clear_clusters():
     assert sorted(np.round(centres[:, 0] / 50).tolist()) == [0.0, 1.0]
 
 
+def _inertia(points: np.ndarray, centres: np.ndarray) -> float:
+    return float(((points[:, None] - centres[None]) ** 2).sum(-1).min(1).sum())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_kmeans_on_overlapping_clusters_is_lloyds_fixed_point_as_good_as_scipys(seed: int):
+    """Three clusters 1.2 to 2.5 sigma apart: the centres must move (each is the mean of its points, each
+    point is nearest its own centre) and the clustering is as tight as scipy's best of 30 runs."""
+    from scipy.cluster.vq import kmeans2
+
+    rng = np.random.default_rng(seed)
+    points = np.concatenate([rng.normal(c, 1.0, (40, 2)) for c in ([0, 0], [2.5, 0], [1.2, 2.2])])
+    labels, centres = kmeans(points, 3, np.random.default_rng(seed))
+    for j in range(3):
+        assert centres[j] == pytest.approx(points[labels == j].mean(axis=0), abs=1e-9)
+    nearest = ((points[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+    assert (labels == nearest).all()
+    best = min(
+        _inertia(points, kmeans2(points, 3, iter=100, minit="++", rng=np.random.default_rng(s))[0])
+        for s in range(30)
+    )
+    assert _inertia(points, centres) <= best * (1 + 1e-3)
+
+
 def _pairwise(points: np.ndarray) -> np.ndarray:
     d = np.hypot(*(points[:, None] - points[None]).transpose(2, 0, 1)).astype(float)
     return d[np.triu_indices(len(points), 1)]

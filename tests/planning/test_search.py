@@ -254,3 +254,44 @@ def test_nms_with_one_pick_and_k1_is_the_gctn_greedy_action():
             place[0].tolist(),
             int(rot[0]),
         )
+
+
+# Turn world: every state offers two places whose best rotation channels turn the block by +30 and -30
+# degrees (36 bins). The VF must imagine exactly the turn the robot will execute for that node.
+TURN_ROTATIONS = 36
+TURNS = {(1, 1): 3, (6, 6): 33}  # place pixel -> rotation bin: +30 and -30 degrees
+
+
+class TurnGctn(ToyGctn):
+    preset = SimpleNamespace(n_rotations=TURN_ROTATIONS)
+
+    def place_maps(self, states, goal, picks, goal_features):
+        logits = torch.full((states.shape[0], picks.shape[1], TURN_ROTATIONS, SIZE, SIZE), -50.0)
+        for (r, c), rot in TURNS.items():
+            logits[:, :, rot, r, c] = 0.0
+        return logits
+
+
+class RecordingVf:
+    def __init__(self) -> None:
+        self.yaws: list[float] = []
+
+    def predict_rgbh(self, states, picks, places, yaws):
+        self.yaws += yaws.tolist()
+        return states.clone()
+
+
+def test_the_vf_imagines_the_turn_the_robot_executes():
+    from tvf.geometry import wrap_angle
+    from tvf.planning.actions import bin_action
+
+    vf = RecordingVf()
+    search = TreeSearch(TurnGctn(), vf, PlannerConfig(k=2, depth=2, proposals="nms", nms_radius=2.0))
+    plan = search.search(toy_image(0)[None], torch.zeros(1, 4, SIZE, SIZE))
+    assert len(vf.yaws) == len(plan.nodes) == 6
+    height = np.zeros((SIZE, SIZE), np.float32)
+    for node, imagined in zip(plan.nodes, vf.yaws, strict=True):
+        assert node.rotation == TURNS[tuple(node.place.tolist())]
+        executed = bin_action(node.pick, node.place, node.rotation, TURN_ROTATIONS, height)[1, 3]
+        assert float(wrap_angle(imagined - executed)) == pytest.approx(0.0, abs=1e-6)
+    assert sorted({round(math.degrees(float(wrap_angle(y)))) for y in vf.yaws}) == [-30, 30]

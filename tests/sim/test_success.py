@@ -1,8 +1,9 @@
 import math
 
 import numpy as np
+import pytest
 
-from tvf.sim.success import evaluate_structure, match_targets, pose_matches
+from tvf.sim.success import TOLERANCE, Tolerance, evaluate_structure, match_targets, pose_matches
 
 TARGETS = np.array([[0.5, 0.0, 0.025], [0.5, 0.05, 0.025]])
 YAWS = np.array([0.3, 0.3])
@@ -32,3 +33,70 @@ def test_matching_is_maximum_not_greedy():
     # block 0 fits both targets, block 1 only target 0: a greedy pass in block order would fail.
     ok = np.array([[True, True], [True, False]])
     assert sorted(match_targets(ok).tolist()) == [0, 1]
+
+
+# -------------------------------------------------------------- every tolerance, both signs, at the boundary
+TOL = TOLERANCE
+EPS = 1e-4  # 0.1 mm and 0.006 degrees on either side of a boundary
+
+
+def _one_block_matches(offset_xyz=(0.0, 0.0, 0.0), dyaw: float = 0.0, target_yaw: float = 0.3) -> bool:
+    target = TARGETS[:1]
+    block = target + np.asarray(offset_xyz)
+    return bool(pose_matches(block, np.array([target_yaw + dyaw]), target, np.array([target_yaw]))[0, 0])
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_position_tolerance_boundaries_on_every_axis_and_sign(axis: int, sign: float):
+    tol = TOL.z if axis == 2 else TOL.xy
+    inside, outside = np.zeros(3), np.zeros(3)
+    inside[axis], outside[axis] = sign * (tol - EPS / 10), sign * (tol + EPS / 10)
+    assert _one_block_matches(inside)
+    assert not _one_block_matches(outside)
+
+
+@pytest.mark.parametrize("angle", [0.0, math.pi / 4, 2.0, -2.5])
+def test_xy_tolerance_is_a_radius_in_any_direction(angle: float):
+    direction = np.array([math.cos(angle), math.sin(angle), 0.0])
+    assert _one_block_matches((TOL.xy - EPS / 10) * direction)
+    assert not _one_block_matches((TOL.xy + EPS / 10) * direction)
+
+
+@pytest.mark.parametrize("target_yaw", [0.3, 0.0, math.pi - 0.01, -math.pi + 0.01])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_yaw_tolerance_boundaries_both_signs_modulo_a_quarter_turn(target_yaw: float, sign: float):
+    tol = TOL.yaw
+    for quarter in (0, 1, -1, 2):  # the block looks the same after each quarter turn
+        turn = quarter * math.pi / 2
+        assert _one_block_matches(dyaw=turn + sign * (tol - EPS), target_yaw=target_yaw)
+        assert not _one_block_matches(dyaw=turn + sign * (tol + EPS), target_yaw=target_yaw)
+    for far in (math.radians(40), math.radians(45), math.radians(30)):  # never within 15 degrees of a face
+        assert not _one_block_matches(dyaw=sign * far, target_yaw=target_yaw)
+
+
+def test_a_block_turned_minus_forty_degrees_is_not_placed():
+    """The issue's example: without the absolute value, -40 degrees counted as placed."""
+    p = evaluate_structure(TARGETS, YAWS + math.radians(-40), TARGETS, YAWS)
+    assert p.matched == 0 and not p.success
+
+
+def test_tolerances_are_strict_and_come_from_the_tolerance_given():
+    """Exactly representable numbers: an error equal to the tolerance is outside it, and a custom
+    Tolerance reaches the matching (evaluate_structure passes it on)."""
+    tol = Tolerance(xy=0.25, z=0.125, yaw=0.25)
+    target, yaw0 = np.array([[0.5, 0.0, 0.0]]), np.array([0.0])
+    for block, yaw in (([0.75, 0.0, 0.0], 0.0), ([0.5, 0.0, 0.125], 0.0), ([0.5, 0.0, 0.0], 0.25)):
+        assert not pose_matches(np.array([block]), np.array([yaw]), target, yaw0, tol).any()
+    assert pose_matches(np.array([[0.74, 0.0, 0.12]]), np.array([0.24]), target, yaw0, tol).all()
+    off = TARGETS + [0.02, 0, 0]  # 2 cm off: placed under a 3 cm tolerance only
+    assert not evaluate_structure(off, YAWS, TARGETS, YAWS).success
+    assert evaluate_structure(off, YAWS, TARGETS, YAWS, Tolerance(xy=0.03)).success
+
+
+def test_a_single_block_matches_and_an_unmatched_block_gets_minus_one():
+    assert evaluate_structure(TARGETS[:1], YAWS[:1], TARGETS[:1], YAWS[:1]).block_to_target == (0,)
+    far = TARGETS + [[0.1, 0, 0], [0, 0, 0]]
+    p = evaluate_structure(far, YAWS, TARGETS, YAWS)
+    assert p.block_to_target == (-1, 1) and p.matched == 1 and p.fraction == 0.5
+    assert match_targets(np.zeros((2, 0), bool)).tolist() == [-1, -1]

@@ -1,4 +1,4 @@
-"""What every command shares: the output-folder check and the flag checks.
+"""What every command shares: the output checks (from tvf.io) and the flag checks.
 
 Commands import their pipeline inside ``run()``: torch, PyBullet and matplotlib take seconds to import,
 and `tvf --help` (or a typo) should not pay for them.
@@ -6,23 +6,10 @@ and `tvf --help` (or a typo) should not pay for them.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from tvf.errors import TvfError
+from tvf.io import check_output_dir, check_output_file
 
-
-def check_output_dir(path: Path) -> Path:
-    """Create ``path`` or fail with one clear line if it cannot be written."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".tvf-write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise TvfError(
-            f"cannot write to output directory {path}: {exc.strerror}; choose another --out"
-        ) from None
-    return path
+__all__ = ["at_least_one", "check_output_dir", "check_output_file"]
 
 
 def at_least_one(**flags: int) -> None:

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import tyro
 
+from tvf.cli.common import check_output_dir
 from tvf.errors import TvfError
 from tvf.io import read_json
 from tvf.train.trainer import TrainConfig
@@ -57,9 +58,11 @@ KINDS: dict[str, type[_TrainFlags]] = {"gctn": TrainGctn, "vf": TrainVf}
 
 def run_training(cfg: TrainConfig, kind: str) -> None:
     from tvf.runs import RunDir
-    from tvf.train.registry import training_job  # lazy: it imports the data pipeline and the simulator
-    from tvf.train.trainer import train
+    from tvf.train.registry import training_job, with_recipe  # lazy: they import the data pipeline
+    from tvf.train.trainer import check_config, train
 
+    check_config(with_recipe(cfg, kind))  # bad flags and an unwritable --out: one line, before any data
+    check_output_dir(cfg.out)
     resolved, job = training_job(cfg, kind)
     val = train(resolved, job)
     shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tvf.cli.common import at_least_one, check_output_dir
+from tvf.cli.common import at_least_one, check_output_dir, check_output_file
 from tvf.errors import TvfError
 
 
@@ -71,7 +71,7 @@ class OracleCmd:
             raise TvfError("--gui shows one window: use it with --workers 1")
         tasks = load_tasks(self.task_file).resolve(self.tasks)
         if self.json is not None:
-            check_output_dir(self.json.parent)  # before any episode runs, not after
+            check_output_file(self.json, "--json")  # before any episode runs, not after
         spec, envs = PolicySpec("oracle"), SimEnvFactory(gui=self.gui)
         seeds = episode_seeds(self.seed_start, self.episodes)
         jobs = [(t, s, spec, self.step_slack, envs) for t in tasks for s in seeds]

@@ -30,11 +30,11 @@ from tvf.evaluate.recording import RecordedEpisode, record_episode
 from tvf.experiment.config import RECIPE_FLAGS, ExperimentConfig
 from tvf.experiment.report import plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
-from tvf.io import atomic_write_json, read_json
+from tvf.io import atomic_write_json, check_output_dir, read_json
 from tvf.policies import PolicySpec, label, make_policy
 from tvf.sim.factory import sim_env
 from tvf.train.registry import MODELS, with_recipe
-from tvf.train.trainer import TrainConfig, train
+from tvf.train.trainer import TrainConfig, check_config, train
 from tvf.viz.recorded import episode_gif
 from tvf.weights import PROVENANCE, WEIGHTS_DIR
 
@@ -64,7 +64,6 @@ def _record_config(cfg: ExperimentConfig) -> None:
         )
     commands = recorded.get("commands", [])
     commands.append(" ".join(["tvf", *sys.argv[1:]]) if sys.argv else "tvf experiment")
-    cfg.out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, {**keep, "commands": commands})
 
 
@@ -190,11 +189,22 @@ RUNNERS = {
 }  # fmt: skip
 
 
+def _check_recipes(cfg: ExperimentConfig) -> None:
+    """Refuse a training recipe that cannot run now, before the data stage (not a traceback after it)."""
+    for kind in MODELS:
+        try:
+            check_config(train_config(cfg, kind))
+        except TvfError as exc:
+            raise TvfError(f"{kind} training: {exc} (set by the experiment's --{kind}-* flags)") from None
+
+
 def run_experiment(cfg: ExperimentConfig) -> Path:
     """Run the selected stages in order; returns EXP/report.md (when the report stage ran)."""
     cfg = cfg.resolved()
     stages = cfg.stage_list()
     cfg.method_list()
+    _check_recipes(cfg)
+    check_output_dir(cfg.out)
     _record_config(cfg)
     for stage in stages:
         _say(f"stage {stage}")

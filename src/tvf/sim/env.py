@@ -28,7 +28,11 @@ from tvf.tasks import Task, get_task, load_tasks
 
 
 class ActionError(TvfError):
-    """An action that is not finite or lies outside the workspace."""
+    """An action that is not a (2, 4) array of numbers, is not finite or lies outside the workspace."""
+
+
+class EpisodeOverError(TvfError):
+    """A step after the episode terminated (gymnasium's rule: call reset() first)."""
 
 
 @dataclass(frozen=True)
@@ -40,7 +44,12 @@ class EnvConfig:
 
 def validate_action(action: np.ndarray) -> np.ndarray:
     """Return the action as a ``(2, 4)`` float array, or raise ActionError naming the problem."""
-    a = np.asarray(action, dtype=np.float64)
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ActionError(
+            f"an action is a (2, 4) array of numbers, pick and place (x, y, z, yaw), got {action!r:.80}"
+        ) from None
     if a.shape != (2, 4):
         raise ActionError(
             f"an action is a (2, 4) array of pick and place (x, y, z, yaw), got shape {a.shape}"
@@ -114,6 +123,8 @@ class TvfEnv(gym.Env):
         self.order: tuple[tuple[int, ...], ...] = self.task.orders[0]
         self.steps = 0
         self.seed_value: int | None = None
+        self.terminated = False
+        """Whether the last step finished the structure; a further step needs a reset first."""
         self._oracle_rng = np.random.default_rng(0)
         self._last_obs: dict[str, np.ndarray] | None = None
         self._goal: dict[str, np.ndarray] = {}
@@ -133,6 +144,7 @@ class TvfEnv(gym.Env):
         self.order = self.task.orders[int(order_rng.integers(len(self.task.orders)))]
         self._oracle_rng = np.random.default_rng(oracle_ss)
         self.steps = 0
+        self.terminated = False
         goal_color, goal_height = self.world.goal_observation()
         self._goal = {"color": goal_color, "height": goal_height}
         obs = self._observe()
@@ -161,6 +173,11 @@ class TvfEnv(gym.Env):
     def step(self, action):
         if self.seed_value is None:
             raise TvfError("call reset() before step()")
+        if self.terminated:
+            raise EpisodeOverError(
+                f"the {self.task.name} episode of seed {self.seed_value} has terminated (every block is "
+                "placed); call reset() before step()"
+            )
         a = validate_action(action)
         before = self.progress().fraction
         result = self.world.arm.pick_and_place(a[0], a[1], set(self.world.blocks))
@@ -170,7 +187,7 @@ class TvfEnv(gym.Env):
         obs = self._observe()
         info = self._info(progress)
         info["primitive"] = result.reason
-        terminated = progress.success
+        terminated = self.terminated = progress.success
         truncated = not terminated and self.steps >= self.max_steps
         return obs, progress.fraction - before, terminated, truncated, info
 

@@ -13,10 +13,10 @@ import numpy as np
 import pybullet as p
 
 from tvf.errors import TvfError
-from tvf.geometry import WORKSPACE, Workspace, rotate_xy
+from tvf.geometry import EDGE_MARGIN, REACH, WORKSPACE, Workspace, rotate_xy
 from tvf.sim.camera import ObservationConfig, observe
 from tvf.sim.robot import MotionConfig, SuctionArm
-from tvf.tasks import BLOCK_SIZE, CELL_SIZE, CELL_THICKNESS, Task
+from tvf.tasks import BLOCK_RADIUS, BLOCK_SIZE, CELL_RADIUS, CELL_SIZE, CELL_THICKNESS, Task
 
 BLOCK_COLOUR = (255 / 255, 87 / 255, 89 / 255, 1.0)
 TABLE_COLOUR = (0.2, 0.2, 0.2, 1.0)
@@ -24,8 +24,6 @@ TABLE_HALF_SIZE = 0.4
 HIDDEN = (0.0, 0.0, 50.0)
 """Where the arm's base goes while the cameras render: above and behind every camera."""
 BLOCK_MASS = 0.01
-BLOCK_RADIUS = BLOCK_SIZE / math.sqrt(2)
-CELL_RADIUS = CELL_SIZE / math.sqrt(2)
 
 
 class SceneError(TvfError):
@@ -36,9 +34,9 @@ class SceneError(TvfError):
 class SceneConfig:
     """Where things may be placed when a scene is sampled."""
 
-    edge_margin: float = 0.02
-    """Every block and base cell keeps this far (m) inside the workspace edges."""
-    reach: tuple[float, float] = (0.30, 0.72)
+    edge_margin: float = EDGE_MARGIN
+    """Every block, base cell and target keeps this far (m) inside the workspace edges."""
+    reach: tuple[float, float] = REACH
     """Everything lies within this ring (m) around the robot base, where the Panda reaches the table."""
     clearance: float = 0.015
     """Gap (m) kept between the circumscribed circles of loose blocks and base cells."""
@@ -264,14 +262,17 @@ def _inside(points: np.ndarray, radius: float, cfg: SceneConfig, ws: Workspace) 
 def sample_layout(
     task: Task, rng: np.random.Generator, cfg: SceneConfig, ws: Workspace = WORKSPACE
 ) -> Layout:
-    """Sample a collision-free layout: the base first (its true footprint), then each block."""
+    """Sample a collision-free layout: the base first (its true footprint, and every target inside the
+    workspace and the reach too), then each block."""
     lo = np.array([ws.x_min, ws.y_min])
     hi = np.array([ws.x_max, ws.y_max])
-    offsets = task.cell_offsets()
+    offsets, targets = task.cell_offsets(), task.target_offsets()[:, :2]
     for _ in range(cfg.tries):
         base_xy, base_yaw = rng.uniform(lo, hi), float(rng.uniform(-math.pi, math.pi))
         cells = rotate_xy(offsets, base_yaw) + base_xy
-        if _inside(cells, CELL_RADIUS, cfg, ws):
+        if _inside(cells, CELL_RADIUS, cfg, ws) and _inside(
+            rotate_xy(targets, base_yaw) + base_xy, BLOCK_RADIUS, cfg, ws
+        ):
             break
     else:
         raise SceneError(

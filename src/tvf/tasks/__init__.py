@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from tvf.errors import TvfError
+from tvf.geometry import EDGE_MARGIN, REACH, WORKSPACE, Workspace
 
 BLOCK_SIZE = 0.04
 """Edge of a block in metres."""
@@ -26,7 +27,15 @@ CELL_THICKNESS = 0.005
 """Thickness of a base cell in metres: the base top is this high above the table."""
 BLOCK_SYMMETRY = math.pi / 2
 """Blocks look the same after a quarter turn."""
+BLOCK_RADIUS = BLOCK_SIZE / math.sqrt(2)
+"""Radius (m) of the circle around a block at any yaw."""
+CELL_RADIUS = CELL_SIZE / math.sqrt(2)
+"""Radius (m) of the circle around a base cell."""
 SPLITS = ("train", "unseen")
+PLACEMENT_YAWS = 72
+"""Base yaws (every 5 degrees) tried when a task file is checked against the workspace and the reach."""
+PLACEMENT_GRID = 11
+"""Base positions per axis tried at each yaw (evenly over the positions the workspace allows)."""
 
 
 class TaskError(TvfError):
@@ -94,6 +103,13 @@ class Task:
             out.append(below)
         return out
 
+    def discs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The base cells and then the targets as circles in the base frame: centres (m, 2) and radii (m,)."""
+        targets = self.target_offsets()[:, :2]
+        centres = np.concatenate([self.cell_offsets(), targets])
+        radii = np.concatenate([np.full(len(self.cells), CELL_RADIUS), np.full(len(targets), BLOCK_RADIUS)])
+        return centres, radii
+
     def summary(self) -> dict:
         return {
             "name": self.name,
@@ -103,6 +119,78 @@ class Task:
             "base": self.base_name,
             "layers": int(max(t[2] for t in self.targets)) + 1,
         }
+
+
+def placement_problem(
+    centres: np.ndarray, radii: np.ndarray, ws: Workspace = WORKSPACE, margin: float = EDGE_MARGIN,
+    reach: tuple[float, float] = REACH,
+) -> str | None:  # fmt: skip
+    """Why no base pose lays out the circles ``centres (m, 2)``, ``radii (m,)`` (base frame): ``"workspace"``
+    (they never fit inside the workspace less ``margin``), ``"reach"`` (they fit, but never inside the
+    ``reach`` ring around the world origin as well) or None (some pose fits).
+
+    Poses are tried on a grid: every ``360 / PLACEMENT_YAWS`` degrees and, at each yaw, ``PLACEMENT_GRID``
+    positions per axis over the range where the rotated circles stay inside the workspace.
+    """
+    yaws = np.linspace(-math.pi, math.pi, PLACEMENT_YAWS, endpoint=False)[:, None]
+    x, y = centres[:, 0][None], centres[:, 1][None]
+    px, py = np.cos(yaws) * x - np.sin(yaws) * y, np.sin(yaws) * x + np.cos(yaws) * y  # (yaws, m)
+    lo = np.stack([ws.x_min + margin + (radii - px).max(1), ws.y_min + margin + (radii - py).max(1)], 1)
+    hi = np.stack([ws.x_max - margin - (px + radii).max(1), ws.y_max - margin - (py + radii).max(1)], 1)
+    fits = (lo <= hi).all(1)  # (yaws,): the base origin has room at this yaw
+    if not fits.any():
+        return "workspace"
+    t = np.linspace(0.0, 1.0, PLACEMENT_GRID)
+    for k in np.flatnonzero(fits):  # a feasible structure usually stops at the first yaw
+        ox = lo[k, 0] + t * (hi[k, 0] - lo[k, 0])
+        oy = lo[k, 1] + t * (hi[k, 1] - lo[k, 1])
+        r = np.hypot(ox[:, None, None] + px[k], oy[None, :, None] + py[k])  # (grid, grid, m)
+        if ((r - radii >= reach[0]) & (r + radii <= reach[1])).all(-1).any():
+            return None
+    return "reach"
+
+
+def check_limits(task: Task, where: str, ws: Workspace = WORKSPACE) -> None:
+    """Refuse a task the robot cannot build: a target above the height range, or a base with targets that
+    no base pose keeps inside the workspace and the arm's reach. The error names the target."""
+    z_range = ws.z_max - ws.z_min
+    for i, (x, y, layer) in enumerate(task.targets):
+        top = CELL_THICKNESS + BLOCK_SIZE * (layer + 1)
+        if top > z_range:
+            highest = int((z_range - CELL_THICKNESS) // BLOCK_SIZE) - 1
+            raise TaskError(
+                f"{where}: target {i} {[x, y, layer]} would reach {100 * top:.1f} cm, above the "
+                f"{100 * z_range:.0f} cm height range of the workspace (layers 0-{highest} fit)"
+            )
+    centres, radii = task.discs()
+    n_cells = len(task.cells)
+    problem = placement_problem(centres[:n_cells], radii[:n_cells], ws)
+    if problem is not None:
+        message = _limit_message(problem, "its cells", "use a smaller base")
+        raise TaskError(f"{where}: base {task.base_name!r} {message}")
+    if placement_problem(centres, radii, ws) is None:
+        return
+    for i in range(len(task.targets)):  # name the first target that makes the structure impossible
+        problem = placement_problem(centres[: n_cells + i + 1], radii[: n_cells + i + 1], ws)
+        if problem is not None:
+            x, y, layer = task.targets[i]
+            what = "it, the base and the targets before it" if i else "it and the base"
+            message = _limit_message(problem, what, "move it nearer the base cells")
+            raise TaskError(f"{where}: target {i} {[x, y, layer]} {message}")
+
+
+def _limit_message(problem: str, what: str, fix: str) -> str:
+    """Why ``what`` (the base's cells, or a target with the base) cannot be laid out, and ``fix``."""
+    ws = WORKSPACE
+    if problem == "workspace":
+        return (
+            f"lies outside the workspace: no base pose keeps {what} {100 * EDGE_MARGIN:.0f} cm inside the "
+            f"{ws.x_max - ws.x_min:.2f} x {ws.y_max - ws.y_min:.2f} m workspace; {fix}"
+        )
+    return (
+        f"is out of the arm's reach: no base pose keeps {what} {REACH[0]:.2f}-{REACH[1]:.2f} m from the "
+        f"robot base inside the workspace; {fix}"
+    )
 
 
 def _colour(value, colours: dict, where: str) -> tuple[float, float, float]:
@@ -152,6 +240,7 @@ def _parse_task(name: str, spec: dict, bases: dict, colours: dict, source: str) 
         orders.append(groups)
     task = Task(name, spec["split"], spec["base"], cells, targets, tuple(orders))
     task.supports()  # validates that every raised target rests on something
+    check_limits(task, where)
     return task
 
 

@@ -18,7 +18,7 @@ from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.errors import TvfError
 from tvf.models.checkpoint import MODEL_CLASSES
 from tvf.train.jobs import gctn_job, vf_job
-from tvf.train.trainer import TrainConfig, TrainingJob
+from tvf.train.trainer import TrainConfig, TrainingJob, check_config
 from tvf.weights import shipped_name
 
 
@@ -87,7 +87,9 @@ def with_recipe(cfg: TrainConfig, kind: str) -> TrainConfig:
 
 
 def training_job(cfg: TrainConfig, kind: str) -> tuple[TrainConfig, TrainingJob]:
-    """The resolved config and the job of a `tvf train KIND` run."""
+    """The resolved config and the job of a `tvf train KIND` run (the config is checked before the data
+    is read)."""
     cfg = with_recipe(cfg, kind)
+    check_config(cfg)
     spec = get_kind(kind)
     return cfg, spec.job(cfg, spec.sampler_class)

@@ -141,20 +141,34 @@ def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch
     return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in batch.items()}
 
 
-def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
-    """Run (or resume) training; returns the last validation metrics."""
+COUNT_FLAGS = ("steps", "batch", "demos", "val_every", "val_samples", "checkpoint_every", "log_every")
+"""Flags that count something and must be at least 1."""
+
+
+def check_config(cfg: TrainConfig) -> None:
+    """Refuse a resolved configuration that cannot train, with one line naming the flag (before any work)."""
     if None in (cfg.steps, cfg.batch, cfg.lr, cfg.schedule, cfg.warmup):
         raise TrainError("the training recipe is incomplete; resolve it with tvf.train.registry.with_recipe")
-    if cfg.steps < 1 or cfg.batch < 1:
-        raise TrainError("--steps and --batch must be at least 1")
+    low = [f"--{name.replace('_', '-')}" for name in COUNT_FLAGS if getattr(cfg, name) < 1]
+    if low:
+        raise TrainError(f"{', '.join(low)} must be at least 1")
+    if not (math.isfinite(cfg.lr) and cfg.lr > 0):
+        raise TrainError(f"--lr must be a positive number, not {cfg.lr}")
     if cfg.schedule not in SCHEDULES:
         raise TrainError(f"unknown --schedule {cfg.schedule!r}; choose {' or '.join(SCHEDULES)}")
     if not 0 <= cfg.warmup < cfg.steps:
         raise TrainError(f"--warmup must be at least 0 and below --steps ({cfg.steps}), not {cfg.warmup}")
+    if cfg.threads < 0:
+        raise TrainError(f"--threads must be 0 (torch's default) or more, not {cfg.threads}")
     if cfg.images_every < 0:
         raise TrainError(f"--images-every must be 0 (no images) or more, not {cfg.images_every}")
     if cfg.wandb:
         import_wandb()  # a missing package fails before the run folder is made
+
+
+def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
+    """Run (or resume) training; returns the last validation metrics."""
+    check_config(cfg)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = pick_device(cfg.device)
