@@ -68,8 +68,9 @@ def test_quickstart_compares_gctn_and_tvf_large_beside_the_shipped_record(
 ):
     weights = tmp_path / "weights"
     weights.mkdir()
-    for name in ("gctn-lite.pt", "vf-lite.pt"):
-        (weights / name).write_bytes((smoke_weights / name).read_bytes())
+    for shipped in smoke_weights.iterdir():
+        if shipped.suffix != ".pt":  # the shipped form: safetensors + JSON config
+            (weights / shipped.name).write_bytes(shipped.read_bytes())
     (weights / "provenance.json").write_text(json.dumps(shipped_record()))
     monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", weights)
     out_dir = tmp_path / "q"
