@@ -37,3 +37,29 @@ def test_gctn_needs_a_checkpoint(tmp_path, monkeypatch):
         evaluate(PolicySpec("gctn"), ["stack-stair"], 1, 1, 1, tmp_path)
     with pytest.raises(TvfError, match="does not exist"):
         evaluate(PolicySpec("gctn", gctn=str(tmp_path / "nope")), ["stack-stair"], 1, 1, 1, tmp_path / "b")
+
+
+def test_a_resume_is_keyed_on_the_weights_content_not_their_path(tmp_path, capsys):
+    from tvf.models.checkpoint import save_checkpoint
+    from tvf.models.gctn import GCTN
+    from tvf.models.presets import SMOKE
+
+    weights, out = tmp_path / "gctn.pt", tmp_path / "eval"
+    save_checkpoint(weights, GCTN(SMOKE, seed=0))
+    spec = PolicySpec("gctn", gctn=str(weights))
+    evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+    recorded = json.loads((out / "eval.json").read_text())["weights"]
+    assert set(recorded) == {"gctn"} and len(recorded["gctn"]) == 64  # the file's SHA-256
+    save_checkpoint(weights, GCTN(SMOKE, seed=1))  # other weights at the same path
+    with pytest.raises(TvfError, match=r"other gctn weights \(content .{8}… → .{8}…\).*--restart"):
+        evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+    capsys.readouterr()
+    evaluate(spec, ["stack-stair"], 1, 1, 1, out, restart=True)  # starts over instead of resuming
+    assert "resuming" not in capsys.readouterr().out
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 1
+    meta = json.loads((out / "eval.json").read_text())
+    assert meta["weights"]["gctn"] != recorded["gctn"]
+    del meta["weights"]  # a folder from before weights were hashed resumes on its paths
+    (out / "eval.json").write_text(json.dumps(meta))
+    evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+    assert "resuming: 1 of 1" in capsys.readouterr().out

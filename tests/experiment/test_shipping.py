@@ -101,6 +101,12 @@ def test_evaluations_enter_the_card_and_a_new_model_drops_them(folder, tmp_path)
     other = _evaluation(tmp_path / "e3", "gctn", {"stack-tower": [True]}, gctn="runs/mine")
     with pytest.raises(TvfError, match="evaluated other models"):
         record_evaluation(other, folder)
+    stale = _evaluation(tmp_path / "e4", "gctn", {"stack-tower": [True]}, weights={"gctn": "ab" * 32})
+    with pytest.raises(TvfError, match="evaluated other gctn weights"):  # eval.json's hashes are checked
+        record_evaluation(stale, folder)
+    digest = provenance(folder)["models"]["gctn"]["sha256"]["gctn-smoke.safetensors"]
+    fresh = _evaluation(tmp_path / "e5", "gctn", {"stack-tower": [True]}, weights={"gctn": digest})
+    assert record_evaluation(fresh, folder, name="GCTN again")["settings"] == {}
     ship_model(folder / "gctn-smoke.safetensors", "gctn", folder)  # a model replaced: its results go
     assert "evaluations" not in provenance(folder)
     assert provenance(folder)["models"]["gctn"]["train"] is None  # weights carry no run record

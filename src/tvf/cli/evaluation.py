@@ -57,6 +57,9 @@ class EvalCmd:
     env: str = "sim"
     """The world: sim (the PyBullet simulator) or MODULE:NAME, a picklable factory task -> Env
     (tvf.envs.Env; docs/architecture.md), e.g. a real robot or a noisy-camera wrapper."""
+    restart: bool = False
+    """Drop the episodes already in --out and run them again (a resume is refused when the settings or the
+    weights files' content changed; this starts over instead)."""
 
     def spec(self):
         from tvf.policies import PolicySpec
@@ -78,7 +81,15 @@ class EvalCmd:
             make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
         check_output_dir(self.out)
         summary = evaluate(
-            spec, tasks, self.episodes, self.seed_start, self.workers, self.out, self.step_slack, envs
+            spec,
+            tasks,
+            self.episodes,
+            self.seed_start,
+            self.workers,
+            self.out,
+            self.step_slack,
+            envs,
+            self.restart,
         )
         print(summary_markdown(summary))
 

@@ -15,11 +15,13 @@ from tvf.envs import EnvFactory
 from tvf.errors import TvfError
 from tvf.evaluate.runner import policy_episode
 from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
+from tvf.models.checkpoint import trained_checkpoint
 from tvf.parallel import run_jobs
-from tvf.policies import PolicySpec
+from tvf.policies import PolicySpec, get_method
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.tasks import BUILTIN, Task
+from tvf.weights import sha256_file
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -74,29 +76,35 @@ def read_results(path: Path) -> list[dict]:
 
 def evaluate(
     spec: PolicySpec, tasks: Sequence[Task | str], episodes: int, seed_start: int, workers: int, out: Path,
-    step_slack: int = 0, envs: EnvFactory | None = None,
+    step_slack: int = 0, envs: EnvFactory | None = None, restart: bool = False,
 ) -> dict:  # fmt: skip
     """Evaluate ``spec`` on seeds :func:`~tvf.evaluate.runner.episode_seeds` of every task; write the outputs.
 
     ``tasks`` are :class:`Task` values (names are looked up in the built-in table); ``envs`` makes the
-    world of each task (default: the simulator) and must pickle when ``workers`` > 1.
+    world of each task (default: the simulator) and must pickle when ``workers`` > 1. A resume is keyed
+    on the settings and on the content (SHA-256) of the weights files: when either changed, the folder is
+    refused, naming what changed, or with ``restart`` its episodes are dropped and run again.
     """
     tasks = [t if isinstance(t, Task) else BUILTIN.get(t) for t in tasks]
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
     meta = {**asdict(spec), "episodes": episodes, "seed_start": seed_start, "step_slack": step_slack}
     meta.pop("device")
+    meta["weights"] = weights_hashes(spec)
     envs = envs or SimEnvFactory()
     if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"
     meta_path = out / "eval.json"
-    if meta_path.exists():
+    if meta_path.exists() and not restart:
         changed = _changed_settings(meta_path, meta)
         if changed:
             raise TvfError(
                 f"{out} holds an evaluation with other {', '.join(changed)} ({meta_path}); "
-                "use the same flags or choose another --out"
+                "use the same flags, pass --restart to run it again, or choose another --out"
             )
+    if restart:
+        for stale in (log, out / "summary.json", out / "summary.md"):
+            stale.unlink(missing_ok=True)
     atomic_write_json(meta_path, meta)
     done = {(r["task"], r["seed"]): r for r in read_results(log)}
     jobs = [(t, s) for t in tasks for s in episode_seeds(seed_start, episodes)]
@@ -114,8 +122,29 @@ def evaluate(
     return summary
 
 
+def weights_hashes(spec: PolicySpec) -> dict[str, str]:
+    """The SHA-256 of every weights file the method loads, by model kind (shipped ones when not given)."""
+    return {
+        kind: sha256_file(trained_checkpoint(getattr(spec, kind), kind))
+        for kind in get_method(spec.method).models
+    }
+
+
 def _changed_settings(meta_path: Path, meta: dict) -> list[str]:
     """The settings in which a recorded evaluation differs from ``meta`` (settings added since it was made
-    count as None, the value that keeps their old behaviour)."""
+    count as None, the value that keeps their old behaviour; a folder from before weights were hashed is
+    trusted on its paths). Changed weights are named by kind: ``gctn weights (content ab12… → cd34…)``."""
     old = read_json(meta_path, "restore it or choose another --out")
-    return sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))
+    changed = sorted(k for k in set(old) | set(meta) if k != "weights" and old.get(k) != meta.get(k))
+    before, now = old.get("weights"), meta["weights"]
+    if before is not None:
+        for kind in sorted(set(before) | set(now)):
+            if before.get(kind) != now.get(kind):
+                changed.append(
+                    f"{kind} weights (content {_short(before.get(kind))} → {_short(now.get(kind))})"
+                )
+    return changed
+
+
+def _short(digest: str | None) -> str:
+    return f"{digest[:8]}…" if digest else "none"

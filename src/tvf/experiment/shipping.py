@@ -29,7 +29,7 @@ from tvf.weights import MODEL_CARD, PROVENANCE, config_path, sha256_file, shippe
 
 STALE = ("results", "evaluations")
 """Provenance entries that measured the former pair of models: dropped when a model is replaced."""
-EVAL_KEYS = ("method", "gctn", "vf", "episodes", "seed_start", "step_slack")
+EVAL_KEYS = ("method", "gctn", "vf", "episodes", "seed_start", "step_slack", "weights")
 """eval.json fields recorded on their own; the others are the evaluation's planner settings."""
 
 
@@ -141,11 +141,24 @@ def record_evaluation(
     record = weights.provenance(folder)
     if not record.get("models"):
         raise TvfError(f"{folder / PROVENANCE} lists no models; ship weights before recording evaluations")
+    _check_evaluated_weights(settings.get("weights") or {}, record, eval_dir, folder)
     kept = [e for e in record.get("evaluations", []) if e["name"] != entry["name"]]
     record["evaluations"] = [*kept, entry]
     atomic_write_json(folder / PROVENANCE, record)
     write_model_card(folder)
     return entry
+
+
+def _check_evaluated_weights(hashes: dict[str, str], record: dict, eval_dir: Path, folder: Path) -> None:
+    """Refuse an evaluation whose weights files (by content, as eval.json records them) are not the ones
+    this folder ships."""
+    for kind, digest in hashes.items():
+        shipped = record["models"].get(kind, {}).get("sha256", {})
+        if shipped and digest not in shipped.values():
+            raise TvfError(
+                f"{eval_dir} evaluated other {kind} weights (content {digest[:8]}…) than {folder} ships; "
+                "evaluate the shipped weights again and record that folder"
+            )
 
 
 def write_model_card(folder: str | Path | None = None) -> Path:
