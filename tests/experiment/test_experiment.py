@@ -95,7 +95,7 @@ def test_corrupt_experiment_record_is_a_one_line_error(tmp_path):
 def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     lite = ExperimentConfig(out=tmp_path, preset="lite").resolved()
     gctn = train_config(lite, "gctn")
-    assert (gctn.steps, gctn.batch, gctn.schedule, gctn.warmup) == (14000, 2, "cosine", 500)
+    assert (gctn.steps, gctn.batch, gctn.schedule, gctn.warmup) == (21000, 2, "cosine", 500)
     assert train_config(lite, "vf").schedule == "constant"
     mine = ExperimentConfig(out=tmp_path, preset="lite", gctn_steps=10, gctn_schedule="constant").resolved()
     assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)

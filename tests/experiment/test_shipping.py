@@ -70,6 +70,8 @@ def test_ship_model_writes_weights_provenance_hashes_and_card(folder):
     assert gctn["sha256"] == {
         n: sha256_file(folder / n) for n in ("gctn-smoke.safetensors", "gctn-smoke.json")
     }
+    assert gctn["converted_from"] == {"file": "last.pt", "sha256": sha256_file(
+        folder.parent / "gctn" / "checkpoints" / "last.pt")}  # fmt: skip
     model, ckpt = load_model(folder / "vf-smoke.safetensors", "vf")
     assert ckpt.step == 5 and ckpt.optimizer is None
     card = (folder / MODEL_CARD).read_text()
@@ -99,8 +101,12 @@ def test_evaluations_enter_the_card_and_a_new_model_drops_them(folder, tmp_path)
         and "more than 10 % of the episodes of stack-building" in card
     )
     other = _evaluation(tmp_path / "e3", "gctn", {"stack-tower": [True]}, gctn="runs/mine")
-    with pytest.raises(TvfError, match="evaluated other models"):
+    with pytest.raises(TvfError, match="evaluated --gctn files it kept no SHA-256 of"):
         record_evaluation(other, folder)
+    source = sha256_file(tmp_path / "gctn" / "checkpoints" / "last.pt")  # the run the weights came from
+    of_run = _evaluation(tmp_path / "e6", "gctn", {"stack-tower": [True]}, gctn=str(tmp_path / "gctn"),
+                         weights={"gctn": source})  # fmt: skip
+    assert "gctn" not in record_evaluation(of_run, folder, name="GCTN of its run")
     stale = _evaluation(tmp_path / "e4", "gctn", {"stack-tower": [True]}, weights={"gctn": "ab" * 32})
     with pytest.raises(TvfError, match="evaluated other gctn weights"):  # eval.json's hashes are checked
         record_evaluation(stale, folder)
@@ -131,7 +137,7 @@ def test_ship_weights_copies_checked_files_and_refuses_changed_ones(folder, tmp_
 def test_the_committed_model_card_is_what_the_generator_writes(tmp_path, monkeypatch):
     committed = (WEIGHTS_DIR / MODEL_CARD).read_text()
     assert committed == model_card(provenance()), "regenerate: tvf.experiment.shipping.write_model_card()"
-    assert "63.7 % [56–71]" in committed  # TVF-L's test-range result (docs/results.md)
+    assert "65.0 % [57–72]" in committed  # TVF-L's test-range result (docs/results.md)
     monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", tmp_path)
     (tmp_path / PROVENANCE).write_text(json.dumps(provenance(WEIGHTS_DIR)))
     assert write_model_card().read_text() == committed  # the default folder is read at call time

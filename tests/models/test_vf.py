@@ -13,7 +13,7 @@ from tvf.geometry import rotate_pixels
 from tvf.models.checkpoint import load_model, save_checkpoint
 from tvf.models.images import clamp_rgbh, from_rgbh, to_rgbh
 from tvf.models.presets import SMOKE, PresetError
-from tvf.models.vf import VisualForesight, encode_action, vf_loss
+from tvf.models.vf import CHANGED_HEIGHT_M, VisualForesight, changed_pixel_weights, encode_action, vf_loss
 
 WINDOW = SMOKE.vf_window
 
@@ -166,3 +166,17 @@ def test_blend_head_keeps_untouched_pixels_and_round_trips(tmp_path):
     assert loaded.preset.vf_head == "blend"
     with pytest.raises(PresetError, match="vf_head"):
         SMOKE.replace(vf_head="magic")
+
+
+def test_changed_pixel_weights_single_out_moved_height() -> None:
+    current = torch.zeros(2, 8, 8)
+    after = current.clone()
+    after[0, 2, 3] = CHANGED_HEIGHT_M * 2  # a block arrived
+    after[1, 5, 5] = CHANGED_HEIGHT_M / 2  # below the threshold: noise, not a change
+    weights = changed_pixel_weights(current, after, 9.0)
+    assert weights[0, 2, 3] == 10.0 and weights.sum() == 2 * 64 + 9.0
+    target = torch.zeros(2, 4, 8, 8)
+    error = target.clone()
+    error[0, 3, 2, 3] = 1.0  # a height error on the changed pixel only
+    assert vf_loss(error, target, weights).item() == pytest.approx(10 * vf_loss(error, target).item())
+    assert vf_loss(error, target, torch.ones(2, 8, 8)).item() == pytest.approx(vf_loss(error, target).item())

@@ -31,7 +31,7 @@ def test_the_lite_recipe_is_the_one_the_shipped_weights_were_trained_with(kind):
 def test_unset_flags_take_the_recipe_and_given_flags_win():
     cfg = TrainConfig(data=Path("d"), out=Path("o"), preset="lite")
     gctn = with_recipe(cfg, "gctn")
-    assert (gctn.steps, gctn.batch, gctn.lr, gctn.schedule, gctn.warmup) == (14000, 2, 2e-4, "cosine", 500)
+    assert (gctn.steps, gctn.batch, gctn.lr, gctn.schedule, gctn.warmup) == (21000, 2, 2e-4, "cosine", 500)
     vf = with_recipe(cfg, "vf")
     assert (vf.steps, vf.batch, vf.schedule) == (3000, 8, "constant")
     mine = with_recipe(TrainConfig(data=Path("d"), out=Path("o"), preset="lite", steps=50, lr=1e-3), "gctn")

@@ -183,3 +183,22 @@ def test_bad_schedules_are_clear_errors(data_root, tmp_path):
         cfg = config(data_root, tmp_path / "bad", **{"schedule": "cosine", **bad})
         with pytest.raises(TrainError, match=match):
             train(cfg, gctn_job(cfg))
+
+
+def test_changed_pixel_loss_is_recorded_resumes_only_with_itself_and_rejects_bad_weights(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "vf", steps=2, vf_changed_weight=20.0)
+    plain = config(data_root, tmp_path / "plain", steps=2)
+    train(cfg, vf_job(cfg))
+    train(plain, vf_job(plain))
+    saved = json.loads((tmp_path / "vf" / "config.json").read_text())
+    assert saved["loss"] == {"changed_weight": 20.0}
+    assert "loss" not in json.loads((tmp_path / "plain" / "config.json").read_text())
+    batch = vf_job(cfg).train_batch(np.random.default_rng(0))
+    weighted, reference = vf_job(cfg).loss(batch)[0], vf_job(plain).loss(batch)[0]
+    assert weighted > reference  # the same model and batch: the changed pixels count 21 times
+    other = replace(cfg, resume=True, vf_changed_weight=5.0, steps=3)
+    with pytest.raises(RunError, match="loss"):
+        train(other, vf_job(other))
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(TrainError, match="--vf-changed-weight"):
+            train(replace(cfg, vf_changed_weight=bad), vf_job(cfg))

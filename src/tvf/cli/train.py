@@ -31,7 +31,7 @@ class _TrainFlags(TrainConfig):
 class TrainGctn(_TrainFlags):
     """Train the goal-conditioned Transporter (pick attention + goal-conditioned place transport).
 
-    Unset --steps/--batch/--lr/--schedule/--warmup come from the preset's recipe (lite: 14000 steps x
+    Unset --steps/--batch/--lr/--schedule/--warmup come from the preset's recipe (lite: 21000 steps x
     batch 2, lr 2e-4 cosine with 500 warm-up steps: the shipped weights' recipe).
     Example: tvf train gctn --data data/demos --demos 10 --preset lite --out runs/gctn
     """

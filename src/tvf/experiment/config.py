@@ -50,7 +50,7 @@ class ExperimentConfig:
     step_slack: int = 0
     """Extra steps beyond one per block (0 = the paper's protocol)."""
     gctn_steps: int | None = None
-    """GCTN optimiser steps (default: the preset's, lite 14000)."""
+    """GCTN optimiser steps (default: the preset's, lite 21000)."""
     gctn_batch: int | None = None
     """GCTN batch (default: the preset's, lite 2)."""
     gctn_lr: float | None = None

@@ -184,7 +184,7 @@ def meta_value(value: object) -> str:
 
 
 def weights_text(shipped: dict, version: str = __version__) -> str:
-    """The shipped weights by name, step and data: ``gctn-lite (step 14000) + vf-lite (step 3000); tvf
+    """The shipped weights by name, step and data: ``gctn-lite (step 21000) + vf-lite (step 3000); tvf
     0.1.0; data a346bb23c13c64a6, 10 demos per training task``."""
     models = shipped.get("models", {})
     names = " + ".join(

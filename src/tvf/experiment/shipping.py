@@ -73,6 +73,7 @@ def _model_entry(checkpoint: Path, out: Path, model, ckpt: Checkpoint) -> dict:
         "parameters": sum(p.numel() for p in model.parameters()), "validation": _validation(run, ckpt),
         "architecture": ckpt.config.get("preset"),
         "sha256": {out.name: sha256_file(out), conf.name: sha256_file(conf)},
+        "converted_from": {"file": checkpoint.name, "sha256": sha256_file(checkpoint)},
     }  # fmt: skip
 
 
@@ -122,14 +123,18 @@ def record_evaluation(
     """Add a `tvf eval` output folder (eval.json + summary.json) of the shipped weights to provenance.json
     under ``name`` (default: the method's label), replacing an entry of that name; regenerate the card.
 
-    Only evaluations without ``--gctn`` / ``--vf`` qualify: they ran the weights of this folder.
+    Only evaluations of this folder's weights qualify, by content as eval.json records it: the shipped
+    files, or (``--gctn`` / ``--vf`` RUN) the checkpoints they were converted from bit-identically.
     """
     eval_dir, folder = Path(eval_dir), _folder(folder)
     fix = "pass a folder written by `tvf eval`"
     settings = read_json(eval_dir / "eval.json", fix)
     summary = read_json(eval_dir / "summary.json", fix)
-    if settings.get("gctn") or settings.get("vf"):
-        raise TvfError(f"{eval_dir} evaluated other models (--gctn/--vf); record the shipped weights' only")
+    hashes = settings.get("weights") or {}
+    unhashed = [f"--{k}" for k in ("gctn", "vf") if settings.get(k) and k not in hashes]
+    if unhashed:
+        raise TvfError(f"{eval_dir} evaluated {' and '.join(unhashed)} files it kept no SHA-256 of; "
+                       "evaluate again with this tvf and record that folder")  # fmt: skip
     entry = {
         "name": name or label(settings["method"]),
         **{k: settings.get(k) for k in EVAL_KEYS if k not in ("gctn", "vf")},
@@ -141,7 +146,7 @@ def record_evaluation(
     record = weights.provenance(folder)
     if not record.get("models"):
         raise TvfError(f"{folder / PROVENANCE} lists no models; ship weights before recording evaluations")
-    _check_evaluated_weights(settings.get("weights") or {}, record, eval_dir, folder)
+    _check_evaluated_weights(hashes, record, eval_dir, folder)
     kept = [e for e in record.get("evaluations", []) if e["name"] != entry["name"]]
     record["evaluations"] = [*kept, entry]
     atomic_write_json(folder / PROVENANCE, record)
@@ -153,8 +158,9 @@ def _check_evaluated_weights(hashes: dict[str, str], record: dict, eval_dir: Pat
     """Refuse an evaluation whose weights files (by content, as eval.json records them) are not the ones
     this folder ships."""
     for kind, digest in hashes.items():
-        shipped = record["models"].get(kind, {}).get("sha256", {})
-        if shipped and digest not in shipped.values():
+        model = record["models"].get(kind, {})
+        shipped = {*model.get("sha256", {}).values(), model.get("converted_from", {}).get("sha256")}
+        if model and digest not in shipped:
             raise TvfError(
                 f"{eval_dir} evaluated other {kind} weights (content {digest[:8]}…) than {folder} ships; "
                 "evaluate the shipped weights again and record that folder"

@@ -87,10 +87,33 @@ def blend_output(
     return weights[:, :1] * rgbh + weights[:, 1:2] * pasted + weights[:, 2:3] * y[:, :RGBH_CHANNELS]
 
 
-def vf_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """L1 on normalised RGB-H, height weighted x5: mean over pixels of (|dR|+|dG|+|dB|+5|dH|) / 4."""
+def vf_loss(
+    predicted: torch.Tensor, target: torch.Tensor, pixel_weights: torch.Tensor | None = None
+) -> torch.Tensor:
+    """L1 on normalised RGB-H, height weighted x5: mean over pixels of (|dR|+|dG|+|dB|+5|dH|) / 4.
+
+    ``pixel_weights`` (B, H, W), when given, multiplies each pixel's term (:func:`changed_pixel_weights`);
+    None is the reference's loss.
+    """
     weights = torch.tensor([1.0, 1.0, 1.0, HEIGHT_WEIGHT], device=predicted.device, dtype=predicted.dtype)
-    return ((predicted - target).abs() * weights.view(1, 4, 1, 1)).sum(dim=1).mean() / RGBH_CHANNELS
+    per_pixel = ((predicted - target).abs() * weights.view(1, 4, 1, 1)).sum(dim=1)
+    if pixel_weights is not None:
+        per_pixel = per_pixel * pixel_weights.to(per_pixel)
+    return per_pixel.mean() / RGBH_CHANNELS
+
+
+CHANGED_HEIGHT_M = 0.005
+"""A pixel whose true height moves by more than this between two images changed (as `tvf eval-vf`)."""
+
+
+def changed_pixel_weights(
+    current_height: torch.Tensor, next_height: torch.Tensor, extra: float
+) -> torch.Tensor:
+    """Per-pixel loss weights (B, H, W): 1 everywhere, ``1 + extra`` where the height changed by more than
+    :data:`CHANGED_HEIGHT_M` (the picked block's old and new footprint: about 1 % of the image, yet all
+    the search looks at)."""
+    changed = (torch.as_tensor(next_height) - torch.as_tensor(current_height)).abs() > CHANGED_HEIGHT_M
+    return 1.0 + extra * changed.to(torch.float32)
 
 
 class VisualForesight(nn.Module):
@@ -139,9 +162,10 @@ class VisualForesight(nn.Module):
         place_pixels: torch.Tensor,
         yaws: torch.Tensor,
         target: torch.Tensor,
+        pixel_weights: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Training loss (:func:`vf_loss`) of the prediction against the next normalised RGB-H."""
-        return vf_loss(self(rgbh, pick_pixels, place_pixels, yaws), target)
+        return vf_loss(self(rgbh, pick_pixels, place_pixels, yaws), target, pixel_weights)
 
     @torch.no_grad()
     def _predict_chunked(

@@ -15,7 +15,7 @@ from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.models.gctn import GCTN
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.presets import get_preset
-from tvf.models.vf import VisualForesight
+from tvf.models.vf import VisualForesight, changed_pixel_weights
 from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
 from tvf.train.pictures import gctn_pictures, vf_pictures
 from tvf.train.trainer import TrainConfig, TrainError, TrainingJob, fingerprint, schedule_config
@@ -148,10 +148,17 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])
         target = to_rgbh(batch["next_color"], batch["next_height"])
-        value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target)
+        weights = None
+        if cfg.vf_changed_weight:
+            extra = cfg.vf_changed_weight
+            weights = changed_pixel_weights(batch["current_height"], batch["next_height"], extra)
+        value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target, weights)
         return value, {"loss": float(value.detach())}
 
-    return _job("vf", cfg, model, sampler_cls, loss, vf_metrics, vf_pictures, identity_fraction=0.0)
+    job = _job("vf", cfg, model, sampler_cls, loss, vf_metrics, vf_pictures, identity_fraction=0.0)
+    if cfg.vf_changed_weight:  # part of what a resumed run must match; absent: the reference's loss
+        job.config["loss"] = {"changed_weight": cfg.vf_changed_weight}
+    return job
 
 
 @torch.no_grad()

@@ -49,7 +49,7 @@ class TrainConfig:
     """Model size: paper | lite | smoke."""
     steps: int | None = None
     """Optimiser steps in total (a resumed run continues up to this number); default: the preset's recipe
-    (lite: GCTN 14000, VF 3000)."""
+    (lite: GCTN 21000, VF 3000)."""
     batch: int | None = None
     """Batch size; default: the preset's recipe (lite: GCTN 2, VF 8)."""
     lr: float | None = None
@@ -67,6 +67,9 @@ class TrainConfig:
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
     vf_head: str | None = None
     """VF only: image (the reference's) | blend (edits the input; docs/models.md); default: the preset's."""
+    vf_changed_weight: float = 0.0
+    """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
+    reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss")."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250
@@ -89,7 +92,7 @@ class TrainConfig:
 
 
 SCHEDULES = ("constant", "cosine")
-RESUME_MATCH = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule")
+RESUME_MATCH = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss")
 """What a resumed run must share with the run it continues."""
 
 
@@ -158,6 +161,9 @@ def check_config(cfg: TrainConfig) -> None:
         raise TrainError(f"unknown --schedule {cfg.schedule!r}; choose {' or '.join(SCHEDULES)}")
     if not 0 <= cfg.warmup < cfg.steps:
         raise TrainError(f"--warmup must be at least 0 and below --steps ({cfg.steps}), not {cfg.warmup}")
+    if not (math.isfinite(cfg.vf_changed_weight) and cfg.vf_changed_weight >= 0):
+        weight = cfg.vf_changed_weight
+        raise TrainError(f"--vf-changed-weight must be 0 (the reference's loss) or more, not {weight}")
     if cfg.threads < 0:
         raise TrainError(f"--threads must be 0 (torch's default) or more, not {cfg.threads}")
     if cfg.images_every < 0:
