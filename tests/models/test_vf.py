@@ -180,3 +180,22 @@ def test_changed_pixel_weights_single_out_moved_height() -> None:
     error[0, 3, 2, 3] = 1.0  # a height error on the changed pixel only
     assert vf_loss(error, target, weights).item() == pytest.approx(10 * vf_loss(error, target).item())
     assert vf_loss(error, target, torch.ones(2, 8, 8)).item() == pytest.approx(vf_loss(error, target).item())
+
+
+def test_local_head_redraws_only_the_pick_and_place_windows() -> None:
+    preset = SMOKE.replace(vf_head="local")
+    model = VisualForesight(preset, seed=0).eval()
+    rgbh = torch.randn(2, 4, 160, 160, generator=torch.Generator().manual_seed(1))
+    pick, place = torch.tensor([[40, 40], [100, 60]]), torch.tensor([[120, 120], [30, 130]])
+    with torch.no_grad():
+        out = model(rgbh, pick, place, torch.tensor([0.3, -1.0]))
+        drawn = VisualForesight(SMOKE, seed=0).eval()(rgbh, pick, place, torch.tensor([0.3, -1.0]))
+    half = preset.vf_window // 2
+    inside = torch.zeros(2, 1, 160, 160, dtype=torch.bool)
+    for b in range(2):
+        for r, c in (pick[b].tolist(), place[b].tolist()):
+            inside[b, :, r - half : r + half, c - half : c + half] = True
+    inside = inside.expand_as(out)
+    assert torch.equal(out[~inside], rgbh[~inside])  # every untouched pixel is the input's, exactly
+    torch.testing.assert_close(out[inside], drawn[inside])  # inside: the same FCN's drawing
+    assert not torch.allclose(out[inside], rgbh[inside])

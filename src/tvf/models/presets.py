@@ -11,7 +11,7 @@ from typing import Any
 
 from tvf.errors import TvfError
 
-VF_HEADS = ("image", "blend")
+VF_HEADS = ("image", "blend", "local")
 
 
 class PresetError(TvfError, ValueError):
@@ -43,7 +43,8 @@ class ModelPreset:
         vf_residual: the VF predicts a change added to the input image instead of the image itself.
         vf_head: "image" (the reference: the FCN draws the next image), "blend" (the FCN edits the
             input: per pixel a softmax over keep-the-input, the pasted place window and a redrawn
-            value, so untouched pixels stay exact; docs/models.md).
+            value, so untouched pixels stay exact; docs/models.md), "local" (the FCN redraws only the
+            pick and place windows; every other pixel is the input's).
         channels_last: run the convolutions in the channels-last memory format.
     """
 

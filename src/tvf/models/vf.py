@@ -24,6 +24,9 @@ ended higher (0.068 vs 0.042 after 400 steps; copying scores 0.116), so it is of
 per-pixel logits of a softmax over (keep the input, take the pasted place window, take the redrawn
 value), and next = w_keep * input + w_paste * pasted + w_draw * FCN. Pixels the action does not touch
 can keep their input exactly, so errors do not pile up when the model is fed its own predictions.
+``preset.vf_head = "local"`` keeps every pixel outside the pick and place windows exactly as the input
+and takes the FCN's image inside them (:func:`local_output`): a local predictor that cannot blur or
+drift where the action did nothing.
 """
 
 from __future__ import annotations
@@ -85,6 +88,14 @@ def blend_output(
     pasted = rgbh * (1 - mask) + encoding[:, RGBH_CHANNELS + 1 :] * mask
     weights = torch.softmax(y[:, RGBH_CHANNELS:], dim=1)
     return weights[:, :1] * rgbh + weights[:, 1:2] * pasted + weights[:, 2:3] * y[:, :RGBH_CHANNELS]
+
+
+def local_output(rgbh: torch.Tensor, drawn: torch.Tensor, pick: torch.Tensor, place: torch.Tensor,
+                 window: int) -> torch.Tensor:  # fmt: skip
+    """The local head's image: the FCN's ``drawn`` inside the pick and place windows, the input elsewhere."""
+    h, w = rgbh.shape[-2:]
+    mask = torch.maximum(square_masks(pick, window, h, w), square_masks(place, window, h, w)).to(rgbh.dtype)
+    return rgbh * (1 - mask) + drawn * mask
 
 
 def vf_loss(
@@ -153,6 +164,8 @@ class VisualForesight(nn.Module):
         y = y.contiguous()
         if self.blend:
             return blend_output(rgbh, enc, y, place, self.window)
+        if self.preset.vf_head == "local":
+            return local_output(rgbh, rgbh + y if self.residual else y, pick, place, self.window)
         return rgbh + y if self.residual else y
 
     def loss(

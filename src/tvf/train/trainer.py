@@ -66,7 +66,8 @@ class TrainConfig:
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
     vf_head: str | None = None
-    """VF only: image (the reference's) | blend (edits the input; docs/models.md); default: the preset's."""
+    """VF only: image (the reference's) | blend (edits the input) | local (redraws only the pick and place
+    windows); docs/models.md; default: the preset's."""
     vf_changed_weight: float = 0.0
     """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
     reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss")."""
