@@ -14,7 +14,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("models", "sim", "envs"),
     ("data", "planning"),
     ("policies",),
-    ("train", "evaluate"),
+    ("train", "evaluate", "api"),
     ("viz",),
     ("experiment",),
     ("cli",),
@@ -50,11 +50,17 @@ def test_every_module_has_a_layer():
     assert units <= set(RANK), f"add {sorted(units - set(RANK))} to LAYERS"
 
 
+LAZY_EXPORTS = {("__init__", "api")}
+"""The package root re-exports the Python API on first use (PEP 562 ``__getattr__``), never at import."""
+
+
 def test_no_module_imports_a_higher_layer_or_a_peer():
     wrong = []
     for path in sorted(ROOT.rglob("*.py")):
         here = unit(path)
         for line, there in tvf_imports(path):
+            if (here, there) in LAZY_EXPORTS:
+                continue
             if there != here and RANK[there] >= RANK[here]:
                 wrong.append(f"{path.relative_to(ROOT)}:{line} ({here}) imports tvf.{there}")
     assert not wrong, "imports that look up or sideways:\n" + "\n".join(wrong)
@@ -64,3 +70,11 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from tvf.cli import main\n")
     assert tvf_imports(bad) == [(2, "cli")]
+
+
+def test_the_root_imports_the_api_only_on_first_use():
+    import subprocess
+    import sys
+
+    code = "import sys, tvf; assert 'torch' not in sys.modules and 'tvf.api' not in sys.modules; tvf.Planner"
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,0 +1,107 @@
+"""The Python API: a planner that answers "what next?" from plain image arrays (no simulator needed).
+
+    import tvf
+    planner = tvf.load_planner("tvf-large")                  # the shipped lite weights
+    decision = planner.next_action(color, height, goal_color, goal_height)
+
+``color`` is the top-down colour image, uint8 (160, 160, 3); ``height`` the height map above the table in
+metres, float32 (160, 160); both on the workspace grid of docs/conventions.md (row = y, col = x, 3.125 mm
+pixels). The decision's poses are in the robot base frame: x, y, z in metres, yaw in radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tvf.errors import TvfError
+from tvf.geometry import WORKSPACE, world_to_pixel
+from tvf.planning.search import Plan
+from tvf.policies.registry import PLANNER_METHODS, PolicySpec, get_method, make_policy
+
+__all__ = ["Decision", "Planner", "load_planner"]
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One pick-and-place: poses in the robot base frame and the pixels they came from."""
+
+    pick: np.ndarray
+    """(x, y, z, yaw) of the suction cup at the pick: the top of the block (yaw 0)."""
+    place: np.ndarray
+    """(x, y, z, yaw) at the place: z is one block above the surface, yaw the turn applied to the block."""
+    pick_pixel: tuple[int, int]
+    """(row, col) of the pick in the input image."""
+    place_pixel: tuple[int, int]
+    plan: Plan | None = None
+    """The TVF search tree behind the decision (None for the GCTN)."""
+
+    def as_array(self) -> np.ndarray:
+        """The ``(2, 4)`` action the simulator and `TvfEnv.step` take."""
+        return np.stack([self.pick, self.place])
+
+
+class Planner:
+    """A loaded method (GCTN or TVF) that plans one step at a time from images."""
+
+    def __init__(self, method: str, policy) -> None:
+        self.method = method
+        self._policy = policy
+
+    def next_action(
+        self, color: np.ndarray, height: np.ndarray, goal_color: np.ndarray, goal_height: np.ndarray
+    ) -> Decision:
+        """The next pick and place that bring the scene of ``color``/``height`` towards the goal images."""
+        obs = {"color": _color(color, "color"), "height": _height(height, "height")}
+        goal = {"color": _color(goal_color, "goal_color"), "height": _height(goal_height, "goal_height")}
+        action = np.asarray(self._policy.act(obs, goal), dtype=np.float64)
+        pick_px, place_px = world_to_pixel(action[:, :2])
+        return Decision(action[0], action[1], _pair(pick_px), _pair(place_px),
+                        getattr(self._policy, "last_plan", None))  # fmt: skip
+
+    def __repr__(self) -> str:
+        return f"Planner({self.method!r})"
+
+
+def load_planner(
+    method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto", **planner
+) -> Planner:  # fmt: skip
+    """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
+    ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
+    pick_branches; docs/planner.md). Errors name the bad argument or file in one line."""
+    learned = ("gctn", *PLANNER_METHODS)
+    if method not in learned or get_method(method).needs_env:
+        raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
+    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches"})
+    if unknown:
+        raise TvfError(f"unknown planner option {unknown[0]!r}; choose k, depth, proposals or pick_branches")
+    if planner and method not in PLANNER_METHODS:
+        raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
+    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, **planner)
+    return Planner(method, make_policy(spec))
+
+
+def _color(image: np.ndarray, name: str) -> np.ndarray:
+    image = np.asarray(image)
+    shape = (*WORKSPACE.shape, 3)
+    if image.shape != shape or image.dtype != np.uint8:
+        raise TvfError(f"{name} must be a uint8 array of shape {shape} (the top-down colour image of "
+                       f"docs/observation.md), not {image.dtype} {image.shape}")  # fmt: skip
+    return image
+
+
+def _height(image: np.ndarray, name: str) -> np.ndarray:
+    image = np.asarray(image)
+    if image.shape != WORKSPACE.shape or not np.issubdtype(image.dtype, np.floating):
+        raise TvfError(f"{name} must be a float array of shape {WORKSPACE.shape} in metres above the "
+                       f"table, not {image.dtype} {image.shape}")  # fmt: skip
+    if not np.isfinite(image).all():
+        raise TvfError(f"{name} holds NaN or infinite values; fill the holes (e.g. with 0, the table)")
+    if image.max() > 1.0:
+        raise TvfError(f"{name} reaches {image.max():.3g}: heights are metres above the table, not mm")
+    return image.astype(np.float32)
+
+
+def _pair(pixel: np.ndarray) -> tuple[int, int]:
+    return int(pixel[0]), int(pixel[1])

@@ -1,0 +1,87 @@
+"""The Python API: a planner from plain arrays, its decisions in the robot base frame, its errors."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+
+import tvf
+import tvf.envs  # noqa: F401  (registers the environments)
+from tvf.errors import TvfError
+from tvf.geometry import WORKSPACE, pixel_to_world
+from tvf.policies import PolicySpec, make_policy
+
+
+@pytest.fixture(scope="module")
+def scene():
+    env = gymnasium.make("tvf/StackTower-v0")
+    obs, _ = env.reset(seed=3)
+    yield env, obs
+    env.close()
+
+
+def test_the_gctn_builds_a_tower_from_arrays_alone(scene):
+    env, obs = scene
+    planner = tvf.load_planner("gctn")
+    for _ in range(3):  # the shipped GCTN solves this scene in three steps (tests/policies)
+        goal = obs["desired_goal"]
+        decision = planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+        np.testing.assert_allclose(pixel_to_world(np.array(decision.pick_pixel)), decision.pick[:2])
+        np.testing.assert_allclose(pixel_to_world(np.array(decision.place_pixel)), decision.place[:2])
+        assert decision.plan is None and decision.as_array().shape == (2, 4)
+        obs, _, terminated, _, _ = env.step(decision.as_array())
+    assert terminated
+
+
+def test_a_tvf_decision_is_the_policys_and_keeps_its_plan(scene):
+    _, obs = scene
+    goal = obs["desired_goal"]
+    planner = tvf.load_planner("tvf-small", k=2)
+    decision = planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+    policy = make_policy(PolicySpec("tvf-small", k=2))
+    np.testing.assert_array_equal(decision.as_array(), policy.act(obs, goal))
+    assert decision.plan is not None and decision.plan.counts["vf_calls"] >= 1
+    assert repr(planner) == "Planner('tvf-small')"
+
+
+def test_bad_arrays_and_arguments_are_one_line_errors(scene):
+    _, obs = scene
+    planner = tvf.load_planner("gctn")
+    color, height = obs["color"], obs["height"]
+    bad = {
+        "color must be a uint8 array of shape (160, 160, 3)": (color.astype(np.uint16), height),
+        "must be a float array of shape (160, 160)": (color, height[:80]),
+        "holds NaN": (color, np.where(height > 0.01, np.nan, height).astype(np.float32)),
+        "metres above the table, not mm": (color, height * 1000),
+    }
+    for match, (c, h) in bad.items():
+        with pytest.raises(TvfError, match=re.escape(match)):
+            planner.next_action(c, h, color, height)
+    with pytest.raises(TvfError, match="goal_color must be"):
+        planner.next_action(color, height, color[..., :2], height)
+    for kwargs, match in (
+        (dict(method="oracle"), "unknown planner 'oracle'"),
+        (dict(method="tvf-large", beam=3), "unknown planner option 'beam'"),
+        (dict(method="gctn", k=2), "gctn does not search"),
+        (dict(method="tvf-large", gctn="/nowhere/run"), "nowhere"),
+    ):
+        with pytest.raises(TvfError, match=match):
+            tvf.load_planner(**kwargs)
+    assert WORKSPACE.shape == (160, 160)
+
+
+def test_the_readme_example_runs_as_written(capsys):
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    code = readme.split("## Python API", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    decision = namespace["decision"]
+    assert isinstance(decision, tvf.Decision) and decision.plan is not None
+    x, y = decision.place[:2]
+    assert WORKSPACE.x_min < x < WORKSPACE.x_max and WORKSPACE.y_min < y < WORKSPACE.y_max
+    assert capsys.readouterr().out.count("[") == 2  # the printed pick and place poses
+    namespace["env"].close()
