@@ -15,6 +15,7 @@ from tvf.data import (
     read_episode,
     read_frames,
     read_info,
+    seal,
     subpixel_to_pixel,
     world_to_subpixel,
     write_episode,
@@ -106,6 +107,7 @@ def test_other_format_version_is_refused(tmp_path, episode):
     write_episode(path, episode)
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = FORMAT_VERSION + 1
+    seal(path)  # as another version of tvf would have written it
     with pytest.raises(DataError, match=rf"{path}: episode format version {FORMAT_VERSION + 1}"):
         read_episode(path)
 

@@ -13,6 +13,7 @@ from tvf.experiment.shipping import (
     record_evaluation,
     ship_model,
     ship_weights,
+    upgrade_weights,
     write_model_card,
 )
 from tvf.io import atomic_write_json
@@ -21,7 +22,15 @@ from tvf.models.gctn import GCTN
 from tvf.models.presets import SMOKE
 from tvf.models.vf import VisualForesight
 from tvf.runs import RunDir
-from tvf.weights import MODEL_CARD, PROVENANCE, WEIGHTS_DIR, provenance, sha256_file, shipped_files
+from tvf.weights import (
+    MODEL_CARD,
+    PROVENANCE,
+    WEIGHTS_DIR,
+    config_path,
+    provenance,
+    sha256_file,
+    shipped_files,
+)
 
 
 def _run(root: Path, model, step: int, seed: int = 0) -> Path:
@@ -132,6 +141,31 @@ def test_ship_weights_copies_checked_files_and_refuses_changed_ones(folder, tmp_
     (folder / PROVENANCE).unlink()
     with pytest.raises(TvfError, match=r"provenance\.json is missing"):
         ship_weights(folder, tmp_path / "again", "smoke")
+
+
+def test_upgrade_weights_keeps_the_tensors_and_the_record_and_adds_the_hashes(folder, tmp_path, capsys):
+    record_evaluation(_evaluation(tmp_path / "e", "gctn", {"stack-tower": [True, False]}), folder)
+    tensors = {n: (folder / n).read_bytes() for n in ("gctn-smoke.safetensors", "vf-smoke.safetensors")}
+    for name in tensors:  # as tvf wrote the configs before weights carried hashes (version 1)
+        meta = json.loads(config_path(folder / name).read_text())
+        del meta["sha256"]
+        atomic_write_json(config_path(folder / name), {**meta, "version": 1}, indent=2)
+    before = provenance(folder)
+    assert upgrade_weights(folder) == [folder / "gctn-smoke.safetensors", folder / "vf-smoke.safetensors"]
+    assert "loaded unverified" in capsys.readouterr().err  # read once as version 1
+    record = provenance(folder)
+    assert {n: (folder / n).read_bytes() for n in tensors} == tensors  # bit-identical tensors
+    for kind, entry in record["models"].items():
+        meta = json.loads((folder / entry["config"]).read_text())
+        assert meta["version"] == 2 and set(meta["sha256"]) == {"tensors", "config"}
+        assert entry["sha256"] == {n: sha256_file(folder / n) for n in (entry["file"], entry["config"])}
+        assert {k: v for k, v in entry.items() if k != "sha256"} == {
+            k: v for k, v in before["models"][kind].items() if k != "sha256"
+        }
+    assert record["evaluations"] == before["evaluations"]
+    assert (folder / MODEL_CARD).read_text() == model_card(record)
+    load_model(folder / "gctn-smoke.safetensors", "gctn")
+    assert not capsys.readouterr().err  # verified now: no warning
 
 
 def test_the_committed_model_card_is_what_the_generator_writes(tmp_path, monkeypatch):

@@ -40,7 +40,7 @@ def test_round_trip_without_pickle(tmp_path: Path, monkeypatch) -> None:
     path = save_weights(tmp_path / "w" / "gctn-smoke.safetensors", model, 5, extra={"val": {"loss": 1.5}})
     assert sorted(p.name for p in path.parent.iterdir()) == ["gctn-smoke.json", "gctn-smoke.safetensors"]
     meta = json.loads(config_path(path).read_text())
-    assert (meta["format"], meta["version"], meta["kind"]) == ("tvf-weights", 1, "gctn")
+    assert (meta["format"], meta["version"], meta["kind"]) == ("tvf-weights", 2, "gctn")
     assert meta["model_class"] == "GCTN" and meta["tvf_version"] == tvf.__version__
     assert meta["config"] == model.config() and meta["step"] == 5 and meta["weights"] == path.name
     assert meta["parameters"] == sum(p.numel() for p in model.parameters())

@@ -2,8 +2,9 @@
 
 A dataset directory holds one split. ``tvf demos --out ROOT --split S`` writes ``ROOT/S/``; both
 :func:`open_dataset` and ``tvf data info`` accept either the split folder or the root above it.
-The manifest is a summary written after each generation run; the files are the truth, so a missing
-or stale manifest is rebuilt by reading the file headers.
+The manifest is a summary written after each generation run, with each file's content checksum; the
+files are the truth, so a missing, stale or older manifest is rebuilt by reading the file headers.
+:func:`verify` reads every file in full and checks it against its checksums and the manifest's.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import json
 import zlib
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -134,6 +135,8 @@ def _manifest_infos(root: Path, files: list[Path]) -> list[EpisodeInfo] | None:
     except (OSError, json.JSONDecodeError) as exc:
         raise DataError(f"{path}: unreadable manifest ({exc}); delete it to rebuild from the files") from None
     version = doc.get("format_version") if isinstance(doc, dict) else None
+    if isinstance(version, int) and 0 < version < FORMAT_VERSION:
+        return None  # an older manifest: rebuilt from the files (format 1 files are read unverified)
     if version != FORMAT_VERSION:
         raise DataError(
             f"{path}: dataset format version {version}, this tvf reads version {FORMAT_VERSION}; "
@@ -149,6 +152,7 @@ def _manifest_infos(root: Path, files: list[Path]) -> list[EpisodeInfo] | None:
                 int(d["steps"]),
                 int(d["random_steps"]),
                 int(d["bytes"]),
+                d.get("checksum"),
             )
             for d in doc["files"]
         ]
@@ -166,6 +170,11 @@ def scan(root: Path, split: str | None = None, use_manifest: bool = True) -> Dem
     infos = _manifest_infos(root, files) if use_manifest else None
     if infos is None:
         infos = [read_info(p) for p in files]
+    return _index(root, infos, split)
+
+
+def _index(root: Path, infos: list[EpisodeInfo], split: str | None) -> DemoDataset:
+    """The dataset of these episodes, grouped by task and sorted by seed; misplaced files are refused."""
     split = split or (root.name if root.name in SPLITS else None)
     for e in infos:
         if split is None:
@@ -182,6 +191,43 @@ def scan(root: Path, split: str | None = None, use_manifest: bool = True) -> Dem
     for eps in grouped.values():
         eps.sort(key=lambda e: e.seed)
     return DemoDataset(root, split or "train", grouped)
+
+
+@dataclass
+class Verification:
+    """What :func:`verify` found in one split folder."""
+
+    dataset: DemoDataset
+    """The episodes that read back intact."""
+    failures: dict[Path, str] = field(default_factory=dict)
+    """Damaged file -> the one-line reason."""
+    unverified: int = 0
+    """Format 1 files: read without checksums."""
+
+
+def verify(root: Path, split: str | None = None) -> Verification:
+    """Read every episode file of a split folder in full, checking every array and attribute against its
+    SHA-256, and each file's content checksum against the manifest's record when the manifest is current.
+    A damaged file is listed, not raised, so that every one is named."""
+    files = episode_files(root)
+    recorded = {e.path: e.checksum for e in _manifest_infos(root, files) or []}
+    infos, failures, unverified = [], {}, 0
+    for path in files:
+        try:
+            info = read_info(path)
+            read_episode(path)
+        except DataError as exc:
+            failures[path] = str(exc)
+            continue
+        if recorded.get(path, info.checksum) != info.checksum:
+            failures[path] = (
+                f"{path}: its content differs from its record in {MANIFEST} (the file was replaced); "
+                "re-run `tvf demos` with the same flags to rewrite the manifest"
+            )
+            continue
+        unverified += info.checksum is None
+        infos.append(info)
+    return Verification(_index(root, infos, split), failures, unverified)
 
 
 def split_dirs(path: str | Path) -> list[Path]:

@@ -93,6 +93,29 @@ def ship_model(source: str | Path, kind: str, folder: str | Path | None = None) 
     return out
 
 
+def upgrade_weights(folder: str | Path | None = None) -> list[Path]:
+    """Rewrite every model of a weights folder (default: the package's) in this tvf's weights format
+    from its own files: the same tensors and safetensors bytes, the JSON config as :func:`save_weights`
+    writes it now (with its hashes). Their SHA-256s in provenance.json follow; the rest of the record
+    (training, evaluations) is kept and the card regenerated. Returns the weights files."""
+    folder = _folder(folder)
+    record = weights.provenance(folder)
+    written = []
+    for kind, entry in record.get("models", {}).items():
+        path = folder / entry["file"]
+        before = path.read_bytes()
+        model, ckpt = load_model(path, kind)
+        save_weights(path, model, ckpt.step, ckpt.config, ckpt.extra)
+        if path.read_bytes() != before:  # save_weights writes the same bytes for the same tensors
+            atomic_write_bytes(path, before)
+            raise TvfError(f"{path}: re-saving changed its bytes; kept the old file, nothing upgraded")
+        entry["sha256"] = {name: sha256_file(folder / name) for name in (path.name, config_path(path).name)}
+        written.append(path)
+    atomic_write_json(folder / PROVENANCE, record)
+    write_model_card(folder)
+    return written
+
+
 def check_hashes(folder: Path, record: dict) -> None:
     """Every file provenance.json lists matches its SHA-256; a missing or changed file is a TvfError."""
     for entry in record.get("models", {}).values():
@@ -232,8 +255,9 @@ def _files(models: dict) -> list[str]:
         "",
         "The weights are [safetensors](https://github.com/huggingface/safetensors) files, read without",
         "pickle; the JSON config beside each names the model kind, its preset (the architecture",
-        "hyper-parameters), the training step and the format version. `provenance.json` holds the SHA-256",
-        "of every file and everything below.",
+        "hyper-parameters), the training step, the format version and the SHA-256 of the tensors and of",
+        "itself, checked at every load. `provenance.json` holds the SHA-256 of every file and everything",
+        "below.",
         "",
         "```python",
         "from tvf.models.checkpoint import load_trained",

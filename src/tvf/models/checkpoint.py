@@ -5,27 +5,34 @@ Two formats load through the same functions (:func:`load_checkpoint`, :func:`loa
 * a training checkpoint ``*.pt`` (runs, resumable; read with ``torch.load(weights_only=True)``), a dict
   of plain data and tensors::
 
-    {"format": "tvf-checkpoint", "version": 1, "kind": "gctn" | "vf", "config": {...},
-     "step": int, "model": state_dict, "optimizer": state_dict | None, "extra": {...}}
+    {"format": "tvf-checkpoint", "version": 2, "kind": "gctn" | "vf", "config": {...},
+     "step": int, "model": state_dict, "optimizer": state_dict | None, "extra": {...},
+     "sha256": content_sha256(every entry above)}
 
 * weights ``KIND-PRESET.safetensors`` (the shipped format, no pickle: ``safetensors.torch.load_file``)
   with a JSON config of the same name beside it::
 
-    {"format": "tvf-weights", "version": 1, "kind": ..., "model_class": ..., "weights": FILE,
-     "config": {...}, "step": int, "parameters": int, "tvf_version": ..., "extra": {...}}
+    {"format": "tvf-weights", "version": 2, "kind": ..., "model_class": ..., "weights": FILE,
+     "config": {...}, "step": int, "parameters": int, "tvf_version": ..., "extra": {...},
+     "sha256": {"tensors": content_sha256(tensors), "config": SHA-256 of this JSON without "sha256"}}
 
 ``config`` must hold ``{"preset": ModelPreset.as_dict()}`` for :func:`load_model` to rebuild the
 network; anything else in it (and in ``extra``) must be plain Python data (dict, list, str, numbers,
 bool, None) or tensors (checkpoints only).
+
+Every load checks the content against its SHA-256 (:func:`content_sha256`: the values, not the
+bytes), so a damaged file is one :class:`CheckpointError` naming it, never other weights. Files of
+version 1 (no hash) load unverified, with one warning each.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
-import pickle
-import zipfile
+import sys
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -44,9 +51,12 @@ from tvf.runs import resolve_checkpoint
 from tvf.weights import WEIGHTS_SUFFIX, config_path, shipped_checkpoint
 
 FORMAT = "tvf-checkpoint"
-VERSION = 1
+VERSION = 2
 WEIGHTS_FORMAT = "tvf-weights"
-WEIGHTS_VERSION = 1
+WEIGHTS_VERSION = 2
+UNVERIFIED_VERSION = 1
+"""The version before hashes (of both formats): still read, unverified, with a warning."""
+HASH = "sha256"
 
 
 class CheckpointError(TvfError):
@@ -91,6 +101,59 @@ def _check_plain(value: Any, where: str) -> None:
         raise TypeError(f"{where} is a {type(value).__name__}; checkpoints hold plain data and tensors only")
 
 
+def _feed(digest, value: Any) -> None:
+    """Feed a value of plain data and tensors to ``digest``, unambiguously (types, lengths, order)."""
+    if isinstance(value, torch.Tensor):
+        t = value.detach().cpu().contiguous()
+        digest.update(f"T{t.dtype}{tuple(t.shape)}:".encode())
+        digest.update(t.reshape(-1).view(torch.uint8).numpy())  # the buffer itself, no copy
+    elif isinstance(value, dict):
+        digest.update(f"d{len(value)}:".encode())
+        for key, item in value.items():
+            _feed(digest, key)
+            _feed(digest, item)
+    elif isinstance(value, list | tuple):
+        digest.update(f"{'l' if isinstance(value, list) else 't'}{len(value)}:".encode())
+        for item in value:
+            _feed(digest, item)
+    elif isinstance(value, str):
+        data = value.encode()
+        digest.update(f"s{len(data)}:".encode() + data)
+    elif isinstance(value, float):
+        digest.update(f"f{float(value).hex()};".encode())
+    elif isinstance(value, bool | int) or value is None:
+        digest.update(f"{type(value).__name__}{value!r};".encode())
+    else:
+        raise TypeError(f"cannot hash a {type(value).__name__}")
+
+
+def content_sha256(value: Any) -> str:
+    """SHA-256 of nested plain data and tensors (dtypes, shapes and bytes; dict order counts): what a
+    checkpoint stores of its payload and a weights config of its tensors."""
+    digest = hashlib.sha256()
+    _feed(digest, value)
+    return digest.hexdigest()
+
+
+def _config_sha256(meta: dict[str, Any]) -> str:
+    """SHA-256 of a weights config as JSON reads it back, without its ``sha256`` entry."""
+    rest = {k: v for k, v in meta.items() if k != HASH}
+    return hashlib.sha256(json.dumps(rest, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _tensors_sha256(tensors: dict[str, torch.Tensor]) -> str:
+    return content_sha256({name: tensors[name] for name in sorted(tensors)})
+
+
+@cache
+def _warn_unverified(path: Path) -> None:
+    print(
+        f"tvf: warning: {path} was written before checkpoints carried a SHA-256 (version "
+        f"{UNVERIFIED_VERSION}) and is loaded unverified; export or train it again with this tvf",
+        file=sys.stderr,
+    )
+
+
 def save_checkpoint(
     path: str | os.PathLike,
     model: nn.Module,
@@ -119,6 +182,7 @@ def save_checkpoint(
         "optimizer": optimizer.state_dict() if optimizer is not None else None,
         "extra": extra or {},
     }
+    payload[HASH] = content_sha256(payload)
     with atomic_path(path) as tmp, tmp.open("wb") as f:
         torch.save(payload, f)
         f.flush()
@@ -148,17 +212,31 @@ def save_weights(
     tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     header = {WEIGHTS_FORMAT: kind}  # one key: safetensors writes several in any order (same bytes each time)
     atomic_write_bytes(path, safetensors.torch.save(tensors, metadata=header))
-    atomic_write_json(config_path(path), {
-        "format": WEIGHTS_FORMAT, "version": WEIGHTS_VERSION, "kind": kind,
-        "model_class": type(model).__name__, "weights": path.name, "config": config, "step": int(step),
-        "parameters": sum(p.numel() for p in model.parameters()), "tvf_version": tvf.__version__,
-        "extra": extra,
-    }, indent=2)  # fmt: skip
+    meta = json.loads(
+        json.dumps(
+            {
+                "format": WEIGHTS_FORMAT,
+                "version": WEIGHTS_VERSION,
+                "kind": kind,
+                "model_class": type(model).__name__,
+                "weights": path.name,
+                "config": config,
+                "step": int(step),
+                "parameters": sum(p.numel() for p in model.parameters()),
+                "tvf_version": tvf.__version__,
+                "extra": extra,
+            },
+            default=str,
+        )
+    )  # fmt: skip  (as a reader will decode it, for its hash)
+    meta[HASH] = {"tensors": _tensors_sha256(tensors), "config": _config_sha256(meta)}
+    atomic_write_json(config_path(path), meta, indent=2)
     return path
 
 
 def _read_weights(path: Path) -> dict[str, Any]:
-    """A safetensors weights file and its JSON config, as a checkpoint payload (no optimiser)."""
+    """A safetensors weights file and its JSON config, as a checkpoint payload (no optimiser), checked
+    against the hashes the config records."""
     meta_path = config_path(path)
     if not meta_path.is_file():
         raise CheckpointError(
@@ -170,16 +248,19 @@ def _read_weights(path: Path) -> dict[str, Any]:
         raise CheckpointError(f"weights config {meta_path} is not valid JSON ({e}); re-export it") from e
     if not isinstance(meta, dict) or meta.get("format") != WEIGHTS_FORMAT:
         raise CheckpointError(f"{meta_path} is not a tvf weights config; pass weights written by tvf")
-    if meta.get("version") != WEIGHTS_VERSION:
-        raise CheckpointError(
-            f"weights config {meta_path} has format version {meta.get('version')}, this tvf reads "
-            f"{WEIGHTS_VERSION}; re-export the weights with this version"
-        )
+    hashes, what = meta.get(HASH), f"weights config {meta_path}"
+    fix, upgrade = "copy it again or re-export the weights", "re-export the weights with this version"
+    if hashes is None:
+        _check_unhashed(what, meta.get("version"), WEIGHTS_VERSION, upgrade, fix)
+    else:
+        if not isinstance(hashes, dict) or _config_sha256(meta) != hashes.get("config"):
+            raise CheckpointError(f"{what} does not match its SHA-256 (the file is damaged); {fix}")
+        _check_version(what, meta.get("version"), WEIGHTS_VERSION, upgrade)
     try:
         tensors = safetensors.torch.load_file(path, device="cpu")
         with safetensors.safe_open(path, framework="pt") as f:
             header = f.metadata() or {}
-    except (safetensors.SafetensorError, OSError, ValueError) as e:
+    except Exception as e:  # the Rust reader raises several kinds on a damaged header
         raise CheckpointError(
             f"weights {path} are corrupt or not safetensors ({type(e).__name__}); pass another file"
         ) from e
@@ -187,6 +268,13 @@ def _read_weights(path: Path) -> dict[str, Any]:
         raise CheckpointError(
             f"weights {path} hold a {header.get(WEIGHTS_FORMAT)!r} model but {meta_path.name} describes a "
             f"{meta.get('kind')!r} one; pass matching files"
+        )
+    if hashes is None:
+        _warn_unverified(path)
+    elif _tensors_sha256(tensors) != hashes.get("tensors"):
+        raise CheckpointError(
+            f"weights {path} do not match the SHA-256 of their tensors in {meta_path.name} (the file is "
+            "damaged or belongs to other weights); copy it again or re-export the weights"
         )
     return {
         "format": FORMAT, "version": VERSION, "kind": meta["kind"], "config": meta.get("config"),
@@ -201,19 +289,51 @@ def _read(path: Path) -> dict[str, Any]:
         return _read_weights(path)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, OSError, ValueError) as e:
+    except Exception as e:  # on arbitrary bytes torch.load raises anything (KeyError for a text file)
         raise CheckpointError(
             f"checkpoint {path} is corrupt or not a tvf checkpoint (torch.load: {type(e).__name__}); "
             "pass another file or train again"
         ) from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a tvf checkpoint; pass a file written by tvf training")
-    if payload.get("version") != VERSION:
-        raise CheckpointError(
-            f"checkpoint {path} has format version {payload.get('version')}, this tvf reads {VERSION}; "
-            "retrain with this version"
-        )
+    _check_payload(path, payload)
     return payload
+
+
+def _check_unhashed(what: str, version: Any, current: int, upgrade: str, fix: str) -> None:
+    """A file without a hash: of the version before hashes it is read (unverified); of the current
+    version it is damaged; of another one it is refused."""
+    if version == UNVERIFIED_VERSION:
+        return
+    if version == current:
+        raise CheckpointError(f"{what} has no SHA-256 to check it against (the file is damaged); {fix}")
+    _check_version(what, version, current, upgrade)
+
+
+def _check_version(what: str, version: Any, current: int, upgrade: str) -> None:
+    """Refuse a file of a version this tvf does not write (checked after its hash, if it has one)."""
+    if version != current:
+        raise CheckpointError(f"{what} has format version {version}, this tvf reads {current}; {upgrade}")
+
+
+def _check_payload(path: Path, payload: dict[str, Any]) -> None:
+    """The payload's version is one this tvf reads and its content matches its SHA-256 (popped)."""
+    digest, version, what = payload.pop(HASH, None), payload.get("version"), f"checkpoint {path}"
+    fix, upgrade = (
+        "train again or pass another checkpoint (RUN/checkpoints/step_N.pt)",
+        "retrain with this version",
+    )
+    if digest is None:
+        _check_unhashed(what, version, VERSION, upgrade, fix)
+        _warn_unverified(path)
+        return
+    try:
+        ok = isinstance(digest, str) and content_sha256(payload) == digest
+    except TypeError:
+        ok = False
+    if not ok:
+        raise CheckpointError(f"{what} does not match its SHA-256 (the file is damaged); {fix}")
+    _check_version(what, version, VERSION, upgrade)
 
 
 def _config_differences(found: dict[str, Any], expected: dict[str, Any], prefix: str = "") -> list[str]:
