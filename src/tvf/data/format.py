@@ -17,6 +17,7 @@ read without decompressing the others, and a flipped byte is caught on read.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from dataclasses import asdict, dataclass, field
@@ -177,9 +178,14 @@ def _json_default(value: Any) -> Any:
 
 
 def write_h5(path: Path, episode: Episode) -> int:
-    """Write ``episode`` to ``path`` (not atomic; see :func:`write_episode`); returns the file size."""
+    """Write ``episode`` to ``path`` (not atomic; see :func:`write_episode`); returns the file size.
+
+    HDF5 builds the file in memory and one plain write puts it on disk: a full disk is then an ordinary
+    ``OSError`` (HDF5 writing to a full disk itself leaves its library broken and the process segfaults).
+    """
     episode.validate()
-    with h5py.File(path, "w") as f:
+    image = io.BytesIO()
+    with h5py.File(image, "w") as f:
         for name in ("color", "height"):
             a = getattr(episode, name)
             f.create_dataset(name, data=a, chunks=(1, *a.shape[1:]), **COMPRESSION)
@@ -206,7 +212,8 @@ def write_h5(path: Path, episode: Episode) -> int:
                 if isinstance(value, str | int | float | bool)
                 else json.dumps(value, default=_json_default)
             )
-    return path.stat().st_size
+    Path(path).write_bytes(image.getbuffer())
+    return image.getbuffer().nbytes
 
 
 def write_episode(path: str | Path, episode: Episode) -> int:
