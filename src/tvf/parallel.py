@@ -43,8 +43,12 @@ def run_jobs(
             return
         with make_pool(workers) as pool:
             futures = [pool.submit(fn, *job) for job in jobs]
-            for fut in futures:
-                yield fut.result()
-                bar.update()
+            try:
+                for fut in futures:
+                    yield fut.result()
+                    bar.update()
+            finally:  # a caller that stops early (an error, a full disk) does not wait for the rest
+                for fut in futures:
+                    fut.cancel()
     finally:
         bar.close()

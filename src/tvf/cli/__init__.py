@@ -1,7 +1,8 @@
 """The ``tvf`` command line: one entry point, one subcommand per stage of the pipeline.
 
 Each subcommand is a frozen dataclass whose fields are its flags (parsed by tyro) and whose ``run``
-method does the work. Errors from bad input print one line and exit with code 2.
+method does the work. Errors from bad input print one line and exit with code 2, and so does a full
+disk wherever it strikes (``ENOSPC``, also in the forms libraries wrap it in).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from tvf.cli.train import TrainCmd, relaunch_command
 from tvf.cli.viz import VizCmd
 from tvf.cli.world import OracleCmd, RenderCmd, TasksCmd
 from tvf.errors import TvfError
+from tvf.io import as_disk_full
 
 DESCRIPTION = """tvf: Transporters with Visual Foresight.
 
@@ -50,11 +52,20 @@ def main(argv: list[str] | None = None) -> None:
         )
         command.run()
     except TvfError as exc:
-        print(f"tvf: error: {' '.join(str(exc).split())}", file=sys.stderr)  # always one line
-        raise SystemExit(2) from None
+        _fail(exc)
     except KeyboardInterrupt:
         print("tvf: interrupted; finished work is kept, re-run the same command to resume", file=sys.stderr)
         raise SystemExit(130) from None
+    except Exception as exc:  # a full disk that no write site named (a library's own file)
+        full = as_disk_full(exc)
+        if full is None:
+            raise
+        _fail(full)
+
+
+def _fail(exc: TvfError) -> None:
+    print(f"tvf: error: {' '.join(str(exc).split())}", file=sys.stderr)  # always one line
+    raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

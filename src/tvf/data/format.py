@@ -27,6 +27,7 @@ per folder.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import sys
@@ -250,14 +251,17 @@ def _tail_sha256(f) -> str:
     return digest.hexdigest()
 
 
+def sealed(data: bytes) -> bytes:
+    """An HDF5 image with a 512-byte user block, that block holding the SHA-256 of the bytes after it."""
+    digest = hashlib.sha256(data[SEAL_SIZE:]).hexdigest()
+    return (SEAL_MAGIC + digest.encode() + b"\n").ljust(SEAL_SIZE, b"\0") + data[SEAL_SIZE:]
+
+
 def seal(path: str | Path) -> None:
-    """Write the SHA-256 of a file's bytes after its 512-byte user block into that block (the writer's
-    last step; a test re-seals a file it changed through HDF5 to simulate another writer)."""
-    with Path(path).open("r+b") as f:
-        f.seek(SEAL_SIZE)
-        digest = _tail_sha256(f)
-        f.seek(0)
-        f.write((SEAL_MAGIC + digest.encode() + b"\n").ljust(SEAL_SIZE, b"\0"))
+    """Seal a file in place (:func:`sealed`; a test re-seals a file it changed through HDF5 to simulate
+    another writer)."""
+    path = Path(path)
+    path.write_bytes(sealed(path.read_bytes()))
 
 
 def check_seal(path: Path) -> bool:
@@ -297,10 +301,13 @@ def _json_default(value: Any) -> Any:
 def write_h5(path: Path, episode: Episode) -> int:
     """Write ``episode`` to ``path`` (not atomic; see :func:`write_episode`); returns the file size.
 
-    The same episode gives the same bytes: the checksums depend on the content only.
+    The same episode gives the same bytes: the checksums depend on the content only. HDF5 builds the
+    file in memory and one plain write puts it on disk: a full disk is then an ordinary ``OSError``
+    (HDF5 writing to a full disk itself leaves its library broken and the process segfaults).
     """
     episode.validate()
-    with h5py.File(path, "w", userblock_size=SEAL_SIZE) as f:
+    image = io.BytesIO()
+    with h5py.File(image, "w", userblock_size=SEAL_SIZE) as f:
         for name in ("color", "height"):
             a = getattr(episode, name)
             f.create_dataset(name, data=a, chunks=(1, *a.shape[1:]), **COMPRESSION)
@@ -329,8 +336,9 @@ def write_h5(path: Path, episode: Episode) -> int:
             )
         sums = {**episode_checksums(episode), "attrs": attrs_sha256(f.attrs)}  # the attributes as read back
         f.attrs[CHECKSUMS] = json.dumps(sums, sort_keys=True, separators=(",", ":"))
-    seal(path)
-    return path.stat().st_size
+    data = sealed(image.getvalue())
+    Path(path).write_bytes(data)
+    return len(data)
 
 
 def write_episode(path: str | Path, episode: Episode) -> int:

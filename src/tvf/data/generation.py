@@ -10,12 +10,12 @@ A train-split episode runs ``n_blocks + 2`` steps, two of them random (``random_
 fourth stream of ``SeedSequence(seed)``, independent of the environment's three); a test-split
 episode runs ``n_blocks`` oracle steps. Each episode gets a fresh simulator, so it depends on its
 seed only. Failures go to ``failures.jsonl``; a re-run skips complete episodes and known failures,
-and removes temporary files that an interrupted run left behind.
+and removes temporary files that an interrupted run left behind. A full disk stops the run with one
+:class:`~tvf.errors.DiskFullError` saying how many episodes are kept; no temporary file stays.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections import deque
@@ -30,8 +30,8 @@ from tqdm import tqdm
 
 from tvf.data.dataset import FAILURES, scan, write_manifest
 from tvf.data.format import SPLITS, DataError, Episode, episode_name, read_info, write_h5
-from tvf.errors import TvfError
-from tvf.io import TMP_SUFFIX, commit, temp_path
+from tvf.errors import DiskFullError, TvfError
+from tvf.io import TMP_SUFFIX, append_jsonl, as_disk_full, commit, read_jsonl, temp_path
 from tvf.parallel import make_pool
 from tvf.sim.env import EnvConfig, TvfEnv
 from tvf.sim.oracle import random_schedule
@@ -177,8 +177,11 @@ def episode_job(task: Task, split: str, seed: int, folder: str) -> Outcome:
         tmp = temp_path(final)
         try:
             write_h5(tmp, episode)
-        except BaseException:
+        except BaseException as exc:
             tmp.unlink(missing_ok=True)
+            full = as_disk_full(exc, final)
+            if full is not None and full is not exc:
+                raise full from exc
             raise
         out.tmp = str(tmp)
     return out
@@ -254,8 +257,15 @@ class _Lock:
                 ) from None
             self.path.unlink(missing_ok=True)
             fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        with os.fdopen(fd, "w") as f:
-            f.write(str(os.getpid()))
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(str(os.getpid()))
+        except BaseException as exc:
+            self.path.unlink(missing_ok=True)
+            full = as_disk_full(exc, self.path)
+            if full is not None and full is not exc:
+                raise full from exc
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
@@ -281,24 +291,15 @@ def remove_stale_tmp(folder: Path) -> int:
 
 
 def read_failures(folder: Path) -> dict[tuple[str, int], dict]:
-    """Known failures ``(task, seed) -> record`` from ``failures.jsonl`` (bad lines are ignored)."""
-    path = folder / FAILURES
+    """Known failures ``(task, seed) -> record`` from ``failures.jsonl`` (a torn last line, as a kill or a
+    full disk may leave, and records without a task and seed are ignored: their seeds are run again)."""
     known: dict[tuple[str, int], dict] = {}
-    if path.is_file():
-        for line in path.read_text().splitlines():
-            try:
-                rec = json.loads(line)
-                known[(str(rec["task"]), int(rec["seed"]))] = rec
-            except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-                continue
+    for rec in read_jsonl(folder / FAILURES):
+        try:
+            known[(str(rec["task"]), int(rec["seed"]))] = rec
+        except (KeyError, TypeError, ValueError):
+            continue
     return known
-
-
-def _append_failure(folder: Path, record: dict) -> None:
-    with open(folder / FAILURES, "a") as f:
-        f.write(json.dumps(record) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
 
 
 def _initial_states(plan: GenerationPlan, report: GenerationReport) -> list[_TaskState]:
@@ -403,13 +404,15 @@ def generate(
             pool = make_pool(workers)
         futures: dict[Future, _TaskState] = {}
         window = max(1, 2 * workers)
+        full: DiskFullError | None = None
         try:
             while True:
                 _submit(states, futures, pool, plan, window, job or episode_job, resolved)
                 if not futures:
                     break
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
-                for fut in done:
+                for fut in [f for f in futures if f in done]:  # in submission order: one worker's
+                    # failures.jsonl then has the same lines in the same order on every run
                     st = futures.pop(fut)
                     st.in_flight -= 1
                     out: Outcome = fut.result()
@@ -417,13 +420,22 @@ def generate(
                     bar.update(_advance(st, plan, report))
                     rate = 60 * bar.n / max(time.perf_counter() - start, 1e-9)
                     bar.set_postfix_str(f"{rate:.1f} ep/min, {len(report.failures)} failed", refresh=False)
+        except Exception as exc:
+            full = as_disk_full(exc, folder)
+            if full is None:
+                raise
         finally:
             if executor is None:
                 pool.shutdown(cancel_futures=True)
             bar.close()
             remove_stale_tmp(folder)  # we hold the lock: every temporary file here is ours
             dataset = scan(folder, plan.split, use_manifest=False)
-            write_manifest(dataset, failures=len(read_failures(folder)))
+            try:
+                write_manifest(dataset, failures=len(read_failures(folder)))
+            except DiskFullError as exc:  # the files are the truth; the next run writes the manifest
+                full = full or exc
+        if full is not None:
+            raise full.keeping(f"{len(dataset)} episodes kept in {folder}") from None
     report.short = {s.name: s.kept for s in states if s.kept < s.want}
     report.seconds = time.perf_counter() - start
     return report
@@ -466,7 +478,7 @@ def _record(st: _TaskState, out: Outcome, plan: GenerationPlan, report: Generati
         "progress": round(out.progress, 3),
         "primitives": out.primitives,
     }
-    _append_failure(plan.folder, rec)
+    append_jsonl(plan.folder / FAILURES, rec)
     report.failures.append(rec)
     say(f"failed: {out.task} seed {out.seed}: {out.reason}")
 

@@ -1,6 +1,7 @@
 """Closed-loop evaluation: run a policy in the simulator on test seeds, write per-episode results
 (``episodes.jsonl``, appended as episodes finish, so an interrupted evaluation resumes) and a summary
-(``summary.json``, ``summary.md``) with Wilson 95% intervals."""
+(``summary.json``, ``summary.md``) with Wilson 95% intervals. A full disk stops it with one
+:class:`~tvf.errors.DiskFullError` saying how many episodes are kept (the log holds whole lines only)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 from tvf.envs import EnvFactory
 from tvf.errors import TvfError
 from tvf.evaluate.runner import policy_episode
-from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
+from tvf.io import append_jsonl, as_disk_full, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.models.checkpoint import trained_checkpoint
 from tvf.parallel import run_jobs
 from tvf.policies import PolicySpec, get_method
@@ -83,7 +84,8 @@ def evaluate(
     ``tasks`` are :class:`Task` values (names are looked up in the built-in table); ``envs`` makes the
     world of each task (default: the simulator) and must pickle when ``workers`` > 1. A resume is keyed
     on the settings and on the content (SHA-256) of the weights files: when either changed, the folder is
-    refused, naming what changed, or with ``restart`` its episodes are dropped and run again.
+    refused, naming what changed, or with ``restart`` its episodes are dropped and run again. A full
+    disk is a :class:`~tvf.errors.DiskFullError` counting the episodes kept.
     """
     tasks = [t if isinstance(t, Task) else BUILTIN.get(t) for t in tasks]
     out.mkdir(parents=True, exist_ok=True)
@@ -105,9 +107,25 @@ def evaluate(
     if restart:
         for stale in (log, out / "summary.json", out / "summary.md"):
             stale.unlink(missing_ok=True)
-    atomic_write_json(meta_path, meta)
-    done = {(r["task"], r["seed"]): r for r in read_results(log)}
     jobs = [(t, s) for t in tasks for s in episode_seeds(seed_start, episodes)]
+    try:
+        return _run_and_summarise(spec, jobs, step_slack, envs, workers, out, meta)
+    except Exception as exc:
+        full = as_disk_full(exc, out)
+        if full is None:
+            raise
+        kept = {(r.get("task"), r.get("seed")) for r in read_results(log)}
+        raise full.keeping(f"{len(kept)} of {len(jobs)} episodes kept in {log}") from exc
+
+
+def _run_and_summarise(
+    spec: PolicySpec, jobs: list[tuple[Task, int]], step_slack: int, envs: EnvFactory, workers: int,
+    out: Path, meta: dict,
+) -> dict:  # fmt: skip
+    """Record the settings, run the episodes not yet in ``episodes.jsonl`` and write the summary."""
+    log = out / "episodes.jsonl"
+    atomic_write_json(out / "eval.json", meta)
+    done = {(r["task"], r["seed"]): r for r in read_results(log)}
     todo = [(t, s, spec, step_slack, envs) for t, s in jobs if (t.name, s) not in done]
     if len(todo) < len(jobs):
         print(f"resuming: {len(jobs) - len(todo)} of {len(jobs)} episodes already in {log}")

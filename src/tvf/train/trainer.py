@@ -3,7 +3,8 @@
 The run directory's layout is :mod:`tvf.runs`'s (config.json, metrics.jsonl, tb/, checkpoints/).
 
 Every batch draws its randomness from ``numpy.random.default_rng([seed, step])``, so a resumed run
-sees exactly the batches an uninterrupted run would have seen.
+sees exactly the batches an uninterrupted run would have seen. A full disk stops the run with one
+:class:`~tvf.errors.DiskFullError` naming the checkpoint that ``--resume`` continues from.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import hashlib
 import json
 import math
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -24,8 +26,8 @@ from tqdm import tqdm
 
 from tvf import __version__
 from tvf.device import pick_device
-from tvf.errors import TvfError
-from tvf.io import atomic_path
+from tvf.errors import RERUN, TvfError
+from tvf.io import as_disk_full, atomic_path
 from tvf.models.checkpoint import load_checkpoint, save_checkpoint
 from tvf.runs import RunDir
 from tvf.train.sinks import Sinks, import_wandb, start_wandb
@@ -173,9 +175,31 @@ def check_config(cfg: TrainConfig) -> None:
         import_wandb()  # a missing package fails before the run folder is made
 
 
+RESUME_HINT = "re-run the same command with --resume to continue"
+
+
 def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
-    """Run (or resume) training; returns the last validation metrics."""
+    """Run (or resume) training; returns the last validation metrics. A full disk is a
+    :class:`~tvf.errors.DiskFullError` saying which checkpoint is kept (a partial one is removed)."""
     check_config(cfg)
+    saved: list[int] = []  # the steps checkpointed into RUN/checkpoints/last.pt, by this call or before
+    try:
+        return _train(cfg, job, saved)
+    except Exception as exc:
+        full = as_disk_full(exc, cfg.out)
+        if full is None:
+            raise
+        rerun = RERUN if cfg.resume else RESUME_HINT  # a run started with --resume resumes as it is
+        raise full.keeping(_kept(RunDir(cfg.out), saved), rerun) from exc
+
+
+def _kept(run: RunDir, saved: list[int]) -> str:
+    if saved:
+        return f"checkpoint step {saved[-1]} kept in {run.last}"
+    return "no checkpoint written yet"
+
+
+def _train(cfg: TrainConfig, job: TrainingJob, saved: list[int]) -> dict[str, float]:
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = pick_device(cfg.device)
@@ -184,20 +208,22 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
     run.prepare(config, cfg.resume, RESUME_MATCH)
     model = job.model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    start = 0
+    start, val = 0, {}  # val: the last validation metrics (a resumed run starts from its checkpoint's)
     if cfg.resume and run.last.exists():
         ckpt = load_checkpoint(run.last, job.kind, expected_config=model.config())
         model.load_state_dict(ckpt.model)
         if ckpt.optimizer is not None:
-            optimizer.load_state_dict(ckpt.optimizer)
+            optimizer.load_state_dict(interned(ckpt.optimizer))
         start = ckpt.step
+        val = interned(dict((ckpt.extra or {}).get("val") or {}))  # the validation the checkpoint recorded
+        saved.append(start)
+    if cfg.resume:  # records logged after the checkpoint (or, without one, at all) are logged again
         run.truncate_metrics(start)
     if start >= cfg.steps:
         print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
         return {}
     sinks = Sinks(run.tb, start if start else None, start_wandb(run.root, config) if cfg.wandb else None)
     amp = device.type == "cuda"
-    val: dict[str, float] = {}
     bar = tqdm(
         total=cfg.steps, initial=start, desc=f"train {job.kind}", unit="step", disable=not cfg.progress
     )
@@ -211,7 +237,9 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
         )  # fmt: skip
         with atomic_path(run.last) as tmp:
             shutil.copyfile(path, tmp)
+        saved.append(step)
 
+    failed = True
     try:
         for step in range(start + 1, cfg.steps + 1):
             model.train()
@@ -249,7 +277,30 @@ def train(cfg: TrainConfig, job: TrainingJob) -> dict[str, float]:
                 t_last = time.perf_counter()  # steps_per_s counts training only
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
                 checkpoint(step)
+        failed = False
     finally:
         bar.close()
-        sinks.close()
+        _close(sinks, quietly=failed)
     return val
+
+
+def interned(value: Any) -> Any:
+    """``value`` with every string in it interned, as the optimiser's own keys are: the next checkpoint
+    then pickles to the same bytes as an uninterrupted run's (pickle shares one object seen twice)."""
+    if isinstance(value, str):
+        return sys.intern(value)
+    if isinstance(value, dict):
+        return {interned(k): interned(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(interned(v) for v in value)
+    return value
+
+
+def _close(sinks: Sinks, quietly: bool) -> None:
+    """Close the sinks; ``quietly`` (an error is already on its way) drops a second error, e.g. TensorBoard
+    failing to flush onto the same full disk."""
+    try:
+        sinks.close()
+    except Exception:
+        if not quietly:
+            raise
