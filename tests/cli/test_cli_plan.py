@@ -64,6 +64,32 @@ def test_exported_views_give_the_simulators_height_map_within_1mm(rigs, task):
     )  # TinyRenderer
 
 
+def test_float_depth_files_give_the_simulators_images_bit_for_bit(tmp_path):
+    """The file path and the simulator call the same fusion: with unrounded depth they agree exactly."""
+    from tvf.sim.env import TvfEnv
+    from tvf.views import write_views
+
+    env = TvfEnv("put-t")
+    try:
+        obs, info = env.reset(seed=1)
+        for name, (images, cameras), want in (
+            ("scene", env.world.views(), obs),
+            ("goal", env.goal_views, info["goal"]),
+        ):
+            folder = tmp_path / name
+            write_views(folder, images, cameras)
+            for (_, depth), cam in zip(images, cameras, strict=True):
+                (folder / f"{cam.name}.depth.png").unlink()
+                np.save(folder / f"{cam.name}.depth.npy", depth)  # found by its default name
+                doc = yaml.safe_load((folder / f"{cam.name}.yaml").read_text())
+                del doc["depth"]
+                (folder / f"{cam.name}.yaml").write_text(yaml.safe_dump(doc))
+            image = load_rgbh(folder, WORKSPACE, "--views")
+            assert np.array_equal(image.height, want["height"]) and np.array_equal(image.color, want["color"])
+    finally:
+        env.close()
+
+
 def simulator_decision(folder) -> tvf.Decision:
     """Planning inside the simulator: the GCTN on the simulator's own fused images."""
     obs, goal = simulator_images(folder, "initial"), simulator_images(folder, "goal")
