@@ -9,8 +9,8 @@ import tvf
 LAYERS: list[tuple[str, ...]] = [
     ("__init__", "errors"),
     ("geometry", "io", "seeds"),
-    ("device", "parallel", "runs", "weights"),
-    ("tasks",),
+    ("device", "parallel", "runs", "weights", "fusion"),
+    ("tasks", "views"),
     ("models", "sim", "envs"),
     ("data", "planning"),
     ("policies",),

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tvf.errors import TvfError
-from tvf.geometry import WORKSPACE, world_to_pixel
+from tvf.geometry import WORKSPACE, world_to_pixel, yaw_to_bin
 from tvf.planning.search import Plan
 from tvf.policies.registry import PLANNER_METHODS, PolicySpec, get_method, make_policy
 
@@ -34,6 +34,9 @@ class Decision:
     pick_pixel: tuple[int, int]
     """(row, col) of the pick in the input image."""
     place_pixel: tuple[int, int]
+    rotation_bin: int = 0
+    """The place's rotation bin (of ``n_rotations``): the turn ``place yaw - pick yaw`` in image terms."""
+    n_rotations: int = 36
     plan: Plan | None = None
     """The TVF search tree behind the decision (None for the GCTN)."""
 
@@ -57,19 +60,29 @@ class Planner:
         goal = {"color": _color(goal_color, "goal_color"), "height": _height(goal_height, "goal_height")}
         action = np.asarray(self._policy.act(obs, goal), dtype=np.float64)
         pick_px, place_px = world_to_pixel(action[:, :2])
-        return Decision(action[0], action[1], _pair(pick_px), _pair(place_px),
+        n = self.n_rotations
+        rotation = int(yaw_to_bin(action[1, 3] - action[0, 3], n))
+        return Decision(action[0], action[1], _pair(pick_px), _pair(place_px), rotation, n,
                         getattr(self._policy, "last_plan", None))  # fmt: skip
+
+    @property
+    def n_rotations(self) -> int:
+        """The rotation bins of the planner's GCTN (36: 10 degree steps)."""
+        search = getattr(self._policy, "search", None)
+        return int(search.n_rotations if search is not None else self._policy.model.preset.n_rotations)
 
     def __repr__(self) -> str:
         return f"Planner({self.method!r})"
 
 
 def load_planner(
-    method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto", **planner
+    method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
+    keep_images: bool = False, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches; docs/planner.md). Errors name the bad argument or file in one line."""
+    pick_branches; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images (for pictures).
+    Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
@@ -79,7 +92,10 @@ def load_planner(
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
     spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, **planner)
-    return Planner(method, make_policy(spec))
+    policy = make_policy(spec)
+    if hasattr(policy, "keep_images"):
+        policy.keep_images = keep_images
+    return Planner(method, policy)
 
 
 def _color(image: np.ndarray, name: str) -> np.ndarray:

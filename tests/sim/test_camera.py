@@ -274,3 +274,12 @@ def test_default_observation_is_faithful(client: int) -> None:
     # the bound can fail: back-projecting at the wrong sub-pixel position breaks it
     bad_mae, _ = _scene_errors(client, (0.0, 0.0))
     assert bad_mae > 2 * MAE_BOUND
+
+
+def test_simulator_cameras_reach_the_fusion_as_pinholes_with_the_sample_offset_in_cx_cy() -> None:
+    cfg = cam.ObservationConfig()
+    du, dv = cam.sample_offset(cfg.renderer)
+    for c, pin in zip(cfg.cameras(), cfg.pinholes(), strict=True):
+        assert (pin.width, pin.height, pin.fx, pin.fy) == (c.width, c.height, c.focal, c.focal)
+        assert (pin.cx, pin.cy) == (c.width / 2 - du, c.height / 2 - dv) == (240.0, 179.0)
+        assert np.array_equal(np.asarray(pin.rotation), c.rotation) and pin.position == c.position

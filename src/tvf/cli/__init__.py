@@ -14,6 +14,7 @@ import tyro
 from tvf.cli.data import DataCmd, DemosCmd
 from tvf.cli.evaluation import EvalCmd, EvalVfCmd
 from tvf.cli.experiment import ExperimentCmd
+from tvf.cli.plan import PlanCmd
 from tvf.cli.quickstart import QuickstartCmd
 from tvf.cli.train import TrainCmd, relaunch_command
 from tvf.cli.viz import VizCmd
@@ -26,7 +27,8 @@ DESCRIPTION = """tvf: Transporters with Visual Foresight.
 Pipeline: `tvf tasks` (what can be built) -> `tvf oracle` / `tvf render` (the simulated world and its
 expert) -> `tvf demos` (datasets) -> `tvf train gctn|vf` (the models) -> `tvf eval` (closed loop).
 `tvf experiment` runs all of it and writes the report; `tvf quickstart` runs TVF-L with the shipped
-weights. Run `tvf COMMAND --help` for each command's flags."""
+weights; `tvf plan` plans from a real rig's camera files. Run `tvf COMMAND --help` for each command's
+flags."""
 
 COMMANDS: dict[str, type] = {
     "tasks": TasksCmd,
@@ -38,6 +40,7 @@ COMMANDS: dict[str, type] = {
     "train": TrainCmd,
     "eval": EvalCmd,
     "eval-vf": EvalVfCmd,
+    "plan": PlanCmd,
     "viz": VizCmd,
     "experiment": ExperimentCmd,
 }

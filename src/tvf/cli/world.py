@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import json
 from collections import defaultdict
 from dataclasses import dataclass
@@ -101,11 +100,13 @@ class OracleCmd:
                                           "success": mean})  # fmt: skip
 
 
-def render_scene(task, seed: int, out: Path) -> dict:
-    """Write the initial and goal images (PNG + NPZ) and a perspective view of a task's scene."""
+def render_scene(task, seed: int, out: Path, export_views: Path | None = None) -> dict:
+    """Write the initial and goal images (PNG + NPZ) and a perspective view of a task's scene; with
+    ``export_views`` also the cameras' raw views of both, as a real rig records them (tvf.views)."""
     from tvf.io import atomic_write_bytes
     from tvf.sim.env import TvfEnv
     from tvf.sim.views import perspective_view
+    from tvf.views import rgbh_bytes, write_views
     from tvf.viz.images import observation_panel, save_png
 
     env = TvfEnv(task)
@@ -113,10 +114,11 @@ def render_scene(task, seed: int, out: Path) -> dict:
         obs, info = env.reset(seed=seed)
         for name, image in (("initial", obs), ("goal", info["goal"])):
             save_png(out / f"{name}.png", observation_panel(image["color"], image["height"]))
-            buf = io.BytesIO()
-            np.savez_compressed(buf, color=image["color"], height=image["height"])
-            atomic_write_bytes(out / f"{name}.npz", buf.getvalue())
+            atomic_write_bytes(out / f"{name}.npz", rgbh_bytes(image["color"], image["height"]))
         save_png(out / "perspective.png", perspective_view(env.world))
+        if export_views is not None:
+            write_views(export_views / "scene", *env.world.views(), env.world.workspace)
+            write_views(export_views / "goal", *env.goal_views, env.world.workspace)
         return {"task": env.task.name, "seed": seed, "blocks": env.task.n_blocks}
     finally:
         env.close()
@@ -125,7 +127,8 @@ def render_scene(task, seed: int, out: Path) -> dict:
 @dataclass(frozen=True)
 class RenderCmd:
     """Render a task's scene: initial and goal images (PNG, and NPZ with arrays `color`, `height`)
-    plus a perspective view."""
+    plus a perspective view; --export-views DIR also writes what a real rig would record (DIR/scene and
+    DIR/goal: per camera a colour PNG, a 16-bit depth PNG in mm and a camera file; docs/real-robot.md)."""
 
     task: str
     """The task name (see `tvf tasks`)."""
@@ -133,6 +136,9 @@ class RenderCmd:
     """Output directory."""
     seed: int = 0
     """Scene seed."""
+    export_views: Path | None = None
+    """Also write the cameras' views of the scene (DIR/scene) and of the finished structure (DIR/goal) as
+    camera files + colour PNG + 16-bit depth PNG (mm), the input of `tvf plan`."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --task may name."""
 
@@ -140,6 +146,10 @@ class RenderCmd:
         from tvf.tasks import load_tasks
 
         task = load_tasks(self.task_file).get(self.task)
-        info = render_scene(task, self.seed, check_output_dir(self.out))
+        out = check_output_dir(self.out)
+        export = None if self.export_views is None else check_output_dir(self.export_views, "--export-views")
+        info = render_scene(task, self.seed, out, export)
         what = "initial/goal .png/.npz and perspective.png"
         print(f"wrote {what} for {info['task']} seed {self.seed} to {self.out}")
+        if export is not None:
+            print(f"wrote the camera views of the scene and the goal to {export}/scene and {export}/goal")

@@ -1,9 +1,11 @@
 """Observation pipeline: simulated RGB-D cameras fused into a top-down colour + height map.
 
 Three oblique RGB-D cameras (the Ravens RealSense D415 poses) are rendered with PyBullet's
-TinyRenderer, back-projected to world points, and binned into the 160 x 160 workspace grid of
-:mod:`tvf.geometry` (floor rule, half-open bounds). Per pixel the height is the highest point any
-camera saw; the colour is the mean over the cameras whose own top point reaches that height.
+TinyRenderer and fused by :mod:`tvf.fusion` (the one fusion, which camera files use too): back-projected
+to world points and binned into the 160 x 160 workspace grid of :mod:`tvf.geometry` (floor rule,
+half-open bounds). Per pixel the height is the highest point any camera saw; the colour is the mean over
+the cameras whose own top point reaches that height. Each camera is handed to the fusion as a
+:class:`tvf.fusion.PinholeCamera` whose cx, cy carry the renderer's sampling offset.
 :func:`orthographic_heightmap` renders an exact top-down reference from a camera 1000 m up.
 
 Measured facts this module relies on (checked by ``tests/sim/test_camera.py``):
@@ -28,15 +30,24 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Literal
 
 import numpy as np
 import pybullet as p
-from scipy import ndimage
 
-from tvf.geometry import WORKSPACE, Workspace, world_to_pixel
+from tvf import fusion
+from tvf.fusion import (  # noqa: F401  (bin_points, fill_holes and the tolerances are re-exported)
+    COLOR_HEIGHT_TOLERANCE,
+    Z_TOLERANCE,
+    PinholeCamera,
+    View,
+    bin_points,
+    fill_holes,
+)
+from tvf.geometry import WORKSPACE, Workspace
 
 #: Only TinyRenderer: in DIRECT mode PyBullet silently renders ER_BULLET_HARDWARE_OPENGL requests with
 #: TinyRenderer too (identical images, measured); a GL/EGL renderer would need its own sample offset.
@@ -44,9 +55,6 @@ Renderer = Literal["tiny"]
 
 #: Image point (u, v) that TinyRenderer samples for pixel (v, u) is (u + du, v + dv); measured.
 TINY_RENDERER_SAMPLE_OFFSET: tuple[float, float] = (0.0, 1.0)
-
-#: Points this far below the table (z_min) still count as table (depth noise is a few micrometres).
-Z_TOLERANCE = 0.002
 
 _RENDERERS = {"tiny": p.ER_TINY_RENDERER}
 _SAMPLE_OFFSETS = {"tiny": TINY_RENDERER_SAMPLE_OFFSET}
@@ -103,6 +111,14 @@ class CameraConfig:
     def projection_matrix(self) -> tuple[float, ...]:
         return p.computeProjectionMatrixFOV(self.fov_y_deg, self.width / self.height, self.z_near, self.z_far)
 
+    def pinhole(self, offset: tuple[float, float]) -> PinholeCamera:
+        """This camera as calibrated intrinsics + pose for a renderer that samples pixel (v, u) at image
+        point (u + du, v + dv): ``cx = W/2 - du``, ``cy = H/2 - dv`` (OpenCV's rule, docs/real-robot.md)."""
+        du, dv = offset
+        cx, cy = 0.5 * self.width - du, 0.5 * self.height - dv
+        return PinholeCamera(self.name, self.width, self.height, self.focal, self.focal, cx, cy,
+                             self.rotation, self.position)  # fmt: skip
+
     def rescaled(self, width: int, height: int) -> CameraConfig:
         """Same pose and horizontal field of view at another resolution (focal scales with width)."""
         return replace(self, width=int(width), height=int(height), focal=self.focal * width / self.width)
@@ -136,6 +152,10 @@ class ObservationConfig:
 
     def cameras(self) -> tuple[CameraConfig, ...]:
         return reference_cameras(self.width, self.height)
+
+    def pinholes(self) -> tuple[PinholeCamera, ...]:
+        """The cameras as calibrated intrinsics + poses, the renderer's sampling offset in cx, cy."""
+        return tuple(cam.pinhole(sample_offset(self.renderer)) for cam in self.cameras())
 
 
 # --------------------------------------------------------------------------------------------
@@ -188,137 +208,42 @@ def render_rgbd(
 
 
 # --------------------------------------------------------------------------------------------
-# Back-projection and fusion
-
-
-@lru_cache(maxsize=32)
-def _ray_directions(camera: CameraConfig, offset: tuple[float, float]) -> np.ndarray:
-    """World-frame ray per pixel, scaled so that point = position + depth * ray; (3, H*W)."""
-    du, dv = offset
-    u = (np.arange(camera.width) + du - 0.5 * camera.width) / camera.focal
-    v = (np.arange(camera.height) + dv - 0.5 * camera.height) / camera.focal
-    uu, vv = np.meshgrid(u, v)
-    rays = np.stack([uu.ravel(), vv.ravel(), np.ones(uu.size)])
-    out = np.ascontiguousarray(camera.rotation @ rays)
-    out.setflags(write=False)
-    return out
-
-
-def _depth_to_xyz(
-    depth: np.ndarray, camera: CameraConfig, offset: tuple[float, float]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    d = np.asarray(depth, dtype=np.float64).ravel()
-    rays = _ray_directions(camera, offset)
-    px, py, pz = camera.position
-    return px + d * rays[0], py + d * rays[1], pz + d * rays[2]
+# Back-projection and fusion: the math is tvf.fusion's (shared with camera files, tvf.views); these
+# adapters take the simulator's cameras and the renderer's sample offset.
 
 
 def depth_to_points(
     depth: np.ndarray, camera: CameraConfig, offset: tuple[float, float] = TINY_RENDERER_SAMPLE_OFFSET
 ) -> np.ndarray:
     """Depth image (H, W) -> world points (H*W, 3), row-major over pixels."""
-    return np.stack(_depth_to_xyz(depth, camera, offset), axis=-1)
-
-
-def bin_points(
-    points: np.ndarray,
-    colors: np.ndarray,
-    workspace: Workspace = WORKSPACE,
-    z_tolerance: float = Z_TOLERANCE,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Highest point per workspace pixel: height (rows, cols) float64 (NaN = empty), colour float64.
-
-    Points outside ``[min, max)`` in x, y and outside ``[z_min - z_tolerance, z_max)`` are dropped;
-    pixels come from :func:`tvf.geometry.world_to_pixel` (floor). Colour is the mean colour of the
-    points that reach the top height (ties are averaged, so the result does not depend on order).
-    """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return _bin_xyz(pts[:, 0], pts[:, 1], pts[:, 2], colors, workspace, z_tolerance)
-
-
-def _bin_xyz(
-    x: np.ndarray,
-    y: np.ndarray,
-    z: np.ndarray,
-    colors: np.ndarray,
-    ws: Workspace,
-    z_tolerance: float = Z_TOLERANCE,
-) -> tuple[np.ndarray, np.ndarray]:
-    keep = (
-        (x >= ws.x_min) & (x < ws.x_max) & (y >= ws.y_min) & (y < ws.y_max)
-        & (z >= ws.z_min - z_tolerance) & (z < ws.z_max)
-    )  # fmt: skip
-    idx = np.flatnonzero(keep)
-    z = z[idx]
-    rgb = np.asarray(colors).reshape(-1, 3)[idx]
-    rc = world_to_pixel(np.stack([x[idx], y[idx]], axis=-1), ws)
-    cell = rc[:, 0] * ws.cols + rc[:, 1]
-    n_cells = ws.rows * ws.cols
-    top = np.full(n_cells, -np.inf)
-    np.maximum.at(top, cell, z)
-    winner = z == top[cell]
-    wcell = cell[winner]
-    count = np.bincount(wcell, minlength=n_cells)
-    wrgb = rgb[winner].astype(np.float64)
-    color = np.stack([np.bincount(wcell, weights=wrgb[:, k], minlength=n_cells) for k in range(3)], axis=-1)
-    filled = count > 0
-    color[filled] /= count[filled, None]
-    height = np.where(filled, np.maximum(top - ws.z_min, 0.0), np.nan)
-    return height.reshape(ws.shape), color.reshape(*ws.shape, 3)
-
-
-#: Cameras whose own top point is within this of the fused max contribute to a pixel's colour.
-COLOR_HEIGHT_TOLERANCE = 0.005
+    return fusion.depth_to_points(depth, camera.pinhole(offset))
 
 
 def fuse_with_coverage(
-    views: list[tuple[np.ndarray, np.ndarray]] | tuple[tuple[np.ndarray, np.ndarray], ...],
-    cameras: tuple[CameraConfig, ...] | list[CameraConfig],
+    views: Sequence[View],
+    cameras: Sequence[CameraConfig],
     workspace: Workspace = WORKSPACE,
     offset: tuple[float, float] = TINY_RENDERER_SAMPLE_OFFSET,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fuse RGB-D views without hole filling: colour uint8, height float32, covered mask (bool).
-
-    Height is the per-pixel max over all cameras. Colour is the mean over the cameras whose top
-    point at that pixel lies within :data:`COLOR_HEIGHT_TOLERANCE` of that max, so colour and
-    height describe the same surface (Ravens averages all cameras, which blends a block's colour
-    with the table at its edges). Empty pixels are 0.
-    """
-    if len(views) != len(cameras):
-        raise ValueError(f"{len(views)} views but {len(cameras)} cameras")
-    per_cam = [
-        _bin_xyz(*_depth_to_xyz(depth, cam, offset), rgb, workspace)
-        for (rgb, depth), cam in zip(views, cameras, strict=True)
-    ]
-    heights = np.stack([h for h, _ in per_cam])  # (C, rows, cols), NaN where empty
-    colors = np.stack([c for _, c in per_cam])
-    covered = ~np.all(np.isnan(heights), axis=0)
-    top = np.where(covered, np.where(np.isnan(heights), -np.inf, heights).max(axis=0), 0.0)
-    near_top = heights >= top - COLOR_HEIGHT_TOLERANCE  # NaN compares False
-    n = near_top.sum(axis=0)
-    color = (colors * near_top[..., None]).sum(axis=0) / np.maximum(n, 1)[..., None]
-    color_u8 = np.clip(np.rint(color), 0, 255).astype(np.uint8)
-    return color_u8, top.astype(np.float32), covered
-
-
-def fill_holes(color: np.ndarray, height: np.ndarray, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Give each uncovered pixel the colour and height of its nearest covered pixel."""
-    if covered.all() or not covered.any():
-        return color, height
-    _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
-    return color[ri, ci], height[ri, ci]
+    """:func:`tvf.fusion.fuse_with_coverage` of the simulator's cameras: colour, height, covered mask."""
+    return fusion.fuse_with_coverage(views, [c.pinhole(offset) for c in cameras], workspace)
 
 
 def fuse(
-    views: list[tuple[np.ndarray, np.ndarray]] | tuple[tuple[np.ndarray, np.ndarray], ...],
-    cameras: tuple[CameraConfig, ...] | list[CameraConfig],
+    views: Sequence[View],
+    cameras: Sequence[CameraConfig],
     workspace: Workspace = WORKSPACE,
     fill: bool = False,
     offset: tuple[float, float] = TINY_RENDERER_SAMPLE_OFFSET,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fuse RGB-D ``views`` [(rgb, depth), ...] -> colour uint8 (rows, cols, 3), height float32."""
-    color, height, covered = fuse_with_coverage(views, cameras, workspace, offset)
-    return fill_holes(color, height, covered) if fill else (color, height)
+    return fusion.fuse(views, [c.pinhole(offset) for c in cameras], workspace, fill)
+
+
+def render_views(client_id: int, config: ObservationConfig | None = None) -> list[View]:
+    """Render the observation's cameras: one (colour uint8, depth float32 metres) per camera."""
+    cfg = config or ObservationConfig()
+    return [render_rgbd(client_id, cam, cfg.shadows, cfg.renderer) for cam in cfg.cameras()]
 
 
 def observe(
@@ -326,9 +251,7 @@ def observe(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Render the three cameras and fuse them: colour uint8 (160, 160, 3), height float32 (160, 160)."""
     cfg = config or ObservationConfig()
-    cameras = cfg.cameras()
-    views = [render_rgbd(client_id, cam, cfg.shadows, cfg.renderer) for cam in cameras]
-    return fuse(views, cameras, workspace, fill=cfg.fill_holes, offset=sample_offset(cfg.renderer))
+    return fusion.fuse(render_views(client_id, cfg), cfg.pinholes(), workspace, cfg.fill_holes)
 
 
 # --------------------------------------------------------------------------------------------
@@ -380,7 +303,8 @@ def orthographic_heightmap(
     """
     cam = orthographic_camera(workspace, supersample, renderer)
     rgb, depth = _render(client_id, cam, shadows=False, renderer=renderer)
-    height, color = _bin_xyz(*_depth_to_xyz(depth, cam, sample_offset(renderer)), rgb, workspace)
+    height, color = fusion.bin_points(fusion.depth_to_points(depth, cam.pinhole(sample_offset(renderer))),
+                                      rgb, workspace)  # fmt: skip
     out_h = np.nan_to_num(height, nan=0.0).astype(np.float32)
     if not with_color:
         return None, out_h

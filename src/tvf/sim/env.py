@@ -128,6 +128,8 @@ class TvfEnv(gym.Env):
         self._oracle_rng = np.random.default_rng(0)
         self._last_obs: dict[str, np.ndarray] | None = None
         self._goal: dict[str, np.ndarray] = {}
+        self.goal_views: tuple[list, tuple] = ([], ())
+        """The raw camera views (and cameras) the goal image of this episode was fused from."""
 
     @property
     def max_steps(self) -> int:
@@ -145,7 +147,8 @@ class TvfEnv(gym.Env):
         self._oracle_rng = np.random.default_rng(oracle_ss)
         self.steps = 0
         self.terminated = False
-        goal_color, goal_height = self.world.goal_observation()
+        self.goal_views = self.world.goal_views()
+        goal_color, goal_height = self.world.fuse(*self.goal_views)
         self._goal = {"color": goal_color, "height": goal_height}
         obs = self._observe()
         info = self._info(self.progress())

@@ -13,8 +13,9 @@ import numpy as np
 import pybullet as p
 
 from tvf.errors import TvfError
+from tvf.fusion import PinholeCamera, View, fuse
 from tvf.geometry import EDGE_MARGIN, REACH, WORKSPACE, Workspace, rotate_xy
-from tvf.sim.camera import ObservationConfig, observe
+from tvf.sim.camera import ObservationConfig, render_views
 from tvf.sim.robot import MotionConfig, SuctionArm
 from tvf.tasks import BLOCK_RADIUS, BLOCK_SIZE, CELL_RADIUS, CELL_SIZE, CELL_THICKNESS, Task
 
@@ -217,31 +218,45 @@ class World:
             p.removeState(state, physicsClientId=self.client)
 
     # ---------------------------------------------------------------- sensing
-    def observe(self) -> tuple[np.ndarray, np.ndarray]:
-        """The fused top-down image (colour uint8 HxWx3, height float32 HxW) without the arm.
+    def views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
+        """The raw RGB-D views of the observation's cameras (colour uint8, depth float32 metres along the
+        optical axis) and the cameras as calibrated intrinsics + poses (what a real rig would record).
 
         The arm is lifted out of every camera's view for the render (no physics step happens
         meanwhile), which is cheaper than rendering it parked and never occludes the workspace.
         """
         p.resetBasePositionAndOrientation(self.arm.body, HIDDEN, [0, 0, 0, 1], physicsClientId=self.client)
         try:
-            return observe(self.client, self.config.observation, self.workspace)
+            return render_views(self.client, self.config.observation), self.config.observation.pinholes()
         finally:
             p.resetBasePositionAndOrientation(
                 self.arm.body, [0, 0, 0], [0, 0, 0, 1], physicsClientId=self.client
             )
 
-    def goal_observation(self) -> tuple[np.ndarray, np.ndarray]:
-        """The image of the finished structure: blocks settled on their targets, then the scene restored."""
+    def fuse(self, views: list[View], cameras: tuple[PinholeCamera, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Views fused into the top-down image (colour uint8 HxWx3, height float32 HxW), holes filled as
+        the observation config says."""
+        return fuse(views, cameras, self.workspace, self.config.observation.fill_holes)
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fused top-down image of :meth:`views`."""
+        return self.fuse(*self.views())
+
+    def goal_views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
+        """:meth:`views` of the finished structure: blocks settled on their targets, scene restored after."""
         state = self.save_state()
         try:
             pos, yaw = self.target_poses()
             order = np.argsort(pos[:, 2], kind="stable")
             self.set_block_poses(pos[order] + [0, 0, 1e-4], yaw[order])
             self.settle(120)
-            return self.observe()
+            return self.views()
         finally:
             self.restore_state(state)
+
+    def goal_observation(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fused image of the finished structure (:meth:`goal_views`)."""
+        return self.fuse(*self.goal_views())
 
 
 # -------------------------------------------------------------------- layout sampling

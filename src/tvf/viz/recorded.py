@@ -250,9 +250,8 @@ def path_slots(steps: list[RecordedStep]) -> int:
     return max((len(p.path) for p in plans), default=0)
 
 
-def frame_body(episode: RecordedEpisode, steps: list[RecordedStep], t: int, slots: int) -> Image.Image:
-    """The columns of frame ``t`` under their names, the action marked on the real one, the badge last."""
-    step = steps[t]
+def step_body(step: RecordedStep, slots: int) -> Image.Image:
+    """The step's columns under their names: real (the action marked on it), ``slots`` imagined, goal."""
     real = view_column(step.obs["color"], step.obs["height"], REAL)
     blank = np.full_like(real, BLANK)
     columns = [
@@ -265,6 +264,31 @@ def frame_body(episode: RecordedEpisode, steps: list[RecordedStep], t: int, slot
     if step.action is not None:
         top, rows = LINE + 2, step.obs["color"].shape[0] * SCALE
         mark_action(body, step.action, [(0, top), (0, top + rows + GAP)])
+    return body
+
+
+def stacked(bar: Image.Image, body: Image.Image, strip: Image.Image) -> np.ndarray:
+    """Text bar, body and legend one above the other."""
+    frame = Image.new("RGB", (body.width, bar.height + body.height + strip.height), WHITE)
+    frame.paste(bar, (0, 0))
+    frame.paste(body, (0, bar.height))
+    frame.paste(strip, (0, bar.height + body.height))
+    return np.asarray(frame)
+
+
+def decision_picture(step: RecordedStep, lines: list[str]) -> np.ndarray:
+    """One decision (``tvf plan``): the ``lines`` of text, the observation with the action marked, the
+    imagined best path when the step's plan kept its images, the goal, and the legend."""
+    slots = path_slots([step])
+    body = step_body(step, slots)
+    text = [w for line in lines for w in wrap(line, body.width - 12)]
+    return stacked(text_bar(text, body.width, len(text)), body, legend(body.width, slots > 0))
+
+
+def frame_body(episode: RecordedEpisode, steps: list[RecordedStep], t: int, slots: int) -> Image.Image:
+    """The columns of frame ``t`` under their names, the action marked on the real one, the badge last."""
+    step = steps[t]
+    body = step_body(step, slots)
     if t == len(steps) - 1:
         n_actions = sum(s.action is not None for s in steps)
         badge(body, badge_text(episode, step.progress, n_actions), episode.success)
@@ -284,12 +308,7 @@ def episode_frames(episode: RecordedEpisode, steps: list[RecordedStep]) -> list[
     strip = legend(width, slots > 0)
     frames = []
     for body, lines in zip(bodies, texts, strict=True):
-        bar = text_bar(lines, width, n_lines)
-        frame = Image.new("RGB", (width, bar.height + body.height + strip.height), WHITE)
-        frame.paste(bar, (0, 0))
-        frame.paste(body, (0, bar.height))
-        frame.paste(strip, (0, bar.height + body.height))
-        frames.append(np.asarray(frame))
+        frames.append(stacked(text_bar(lines, width, n_lines), body, strip))
     return frames
 
 
