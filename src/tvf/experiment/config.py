@@ -17,7 +17,9 @@ STAGES = ("data", "train", "eval-vf", "eval", "gifs", "report", "weights")
 RECIPE_FLAGS = {
     f"{kind}_{field}": (kind, field) for kind in ("gctn", "vf") for field in ("steps", "batch", "lr")
 }
-RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", "warmup")}
+RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", "warmup"),
+                 "vf_schedule": ("vf", "schedule"), "vf_warmup": ("vf", "warmup"),
+                 "vf_changed_weight": ("vf", "vf_changed_weight")}  # fmt: skip
 """Experiment flags that override a field of a model kind's recipe (tvf.train.registry)."""
 
 
@@ -64,7 +66,14 @@ class ExperimentConfig:
     vf_batch: int | None = None
     """VF batch (default: the preset's, lite 8)."""
     vf_lr: float | None = None
-    """VF Adam learning rate (default: the preset's, 1e-4)."""
+    """VF Adam (peak) learning rate (default: the preset's)."""
+    vf_schedule: str | None = None
+    """VF learning-rate schedule, constant | cosine (default: the preset's)."""
+    vf_warmup: int | None = None
+    """VF warm-up steps of the cosine schedule (default: the preset's)."""
+    vf_changed_weight: float | None = None
+    """VF extra loss weight on the pixels whose height changes (0: the reference's loss; default: the
+    preset's; docs/models.md)."""
     workers: int = 2
     """Parallel processes for data generation and evaluation."""
     task_file: Path | None = None

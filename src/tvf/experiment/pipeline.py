@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from tvf.data.generation import GenerationPlan, generate
@@ -54,8 +54,9 @@ def _record_config(cfg: ExperimentConfig) -> None:
     keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device", "wandb")}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
-    defaults = json.loads(json.dumps({f.name: f.default for f in fields(cfg)}, default=str))
-    # a folder made before a flag existed lacks it: it resumes when the flag keeps its default
+    # a folder made before a flag existed lacks it: it resumes when the flag keeps its (resolved) default
+    defaults = json.loads(json.dumps(asdict(ExperimentConfig(out=cfg.out, preset=cfg.preset).resolved()),
+                                     default=str))  # fmt: skip
     changed = sorted(k for k in keep if recorded and recorded.get(k, defaults.get(k)) != keep[k])
     if changed:
         raise TvfError(

@@ -31,6 +31,8 @@ class Recipe:
     lr: float
     schedule: str = "constant"
     warmup: int = 0
+    vf_changed_weight: float = 0.0
+    """The VF's extra loss weight on changed pixels (0: the reference's loss; unused by the GCTN)."""
 
 
 @dataclass(frozen=True)

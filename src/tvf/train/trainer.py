@@ -70,9 +70,10 @@ class TrainConfig:
     vf_head: str | None = None
     """VF only: image (the reference's) | blend (edits the input) | local (redraws only the pick and place
     windows); docs/models.md; default: the preset's."""
-    vf_changed_weight: float = 0.0
+    vf_changed_weight: float | None = None
     """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
-    reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss")."""
+    reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss"); default: the preset's
+    recipe."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250
@@ -164,8 +165,8 @@ def check_config(cfg: TrainConfig) -> None:
         raise TrainError(f"unknown --schedule {cfg.schedule!r}; choose {' or '.join(SCHEDULES)}")
     if not 0 <= cfg.warmup < cfg.steps:
         raise TrainError(f"--warmup must be at least 0 and below --steps ({cfg.steps}), not {cfg.warmup}")
-    if not (math.isfinite(cfg.vf_changed_weight) and cfg.vf_changed_weight >= 0):
-        weight = cfg.vf_changed_weight
+    weight = cfg.vf_changed_weight
+    if weight is not None and not (math.isfinite(weight) and weight >= 0):
         raise TrainError(f"--vf-changed-weight must be 0 (the reference's loss) or more, not {weight}")
     if cfg.threads < 0:
         raise TrainError(f"--threads must be 0 (torch's default) or more, not {cfg.threads}")
