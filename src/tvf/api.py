@@ -58,7 +58,10 @@ class Planner:
         """The next pick and place that bring the scene of ``color``/``height`` towards the goal images."""
         obs = {"color": _color(color, "color"), "height": _height(height, "height")}
         goal = {"color": _color(goal_color, "goal_color"), "height": _height(goal_height, "goal_height")}
-        action = np.asarray(self._policy.act(obs, goal), dtype=np.float64)
+        chosen = self._policy.act(obs, goal)
+        if chosen is None:
+            raise TvfError(f"{self.method} found no action for this scene; check the input images")
+        action = np.asarray(chosen, dtype=np.float64)
         pick_px, place_px = world_to_pixel(action[:, :2])
         n = self.n_rotations
         rotation = int(yaw_to_bin(action[1, 3] - action[0, 3], n))

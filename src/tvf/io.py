@@ -70,8 +70,14 @@ def temp_path(path: str | Path) -> Path:
 
 
 def commit(tmp: str | Path, path: str | Path) -> None:
-    """Give a finished temporary file the public mode and rename it onto ``path`` (atomic)."""
+    """Give a finished temporary file the public mode, flush it to the disk and rename it onto ``path``
+    (atomic: after a power cut the name holds the old file or the whole new one)."""
     os.chmod(tmp, PUBLIC_FILE_MODE)
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
     os.replace(tmp, path)
 
 

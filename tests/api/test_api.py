@@ -85,3 +85,12 @@ def test_the_readme_example_runs_as_written(capsys):
     assert WORKSPACE.x_min < x < WORKSPACE.x_max and WORKSPACE.y_min < y < WORKSPACE.y_max
     assert capsys.readouterr().out.count("[") == 2  # the printed pick and place poses
     namespace["env"].close()
+
+
+def test_a_policy_with_nothing_to_do_is_a_one_line_error(scene):
+    _, obs = scene
+    planner = tvf.load_planner("gctn")
+    planner._policy.act = lambda obs, goal: None  # the Policy contract allows None
+    goal = obs["desired_goal"]
+    with pytest.raises(TvfError, match="found no action"):
+        planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])

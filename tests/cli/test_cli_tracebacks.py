@@ -118,3 +118,12 @@ def test_step_after_terminated_is_refused_until_reset(one_block_env):
     assert one_block_env.steps == 1
     one_block_env.reset(seed=2)  # a reset starts a new episode
     assert not one_block_env.terminated and one_block_env.steps == 0
+
+
+def test_the_command_line_parser_imports_neither_torch_nor_pybullet():
+    """`tvf --help` stays fast: the parser is built from torch-free config classes (tvf.train.config)."""
+    import subprocess
+    import sys
+
+    code = "import sys, tvf.cli; assert not {'torch', 'pybullet'} & set(sys.modules), sorted(sys.modules)"
+    subprocess.run([sys.executable, "-c", code], check=True)

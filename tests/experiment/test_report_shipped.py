@@ -11,9 +11,18 @@ import numpy as np
 import pytest
 
 from tvf import __version__
-from tvf.evaluate.closed_loop import summarise
-from tvf.experiment.report import comparison_rows, report_html, report_markdown, shipped_rows, write_report
+from tvf.evaluate.closed_loop import summarise, wilson
+from tvf.experiment.report import (
+    comparison_rows,
+    report_html,
+    report_markdown,
+    reported_record,
+    shipped_rows,
+    success_cell,
+    write_report,
+)
 from tvf.tasks import resolve_tasks
+from tvf.weights import provenance
 
 UNSEEN = [t.name for t in resolve_tasks("unseen")]
 TRAIN = [t.name for t in resolve_tasks("train")]
@@ -187,8 +196,6 @@ def test_a_headless_browser_renders_the_report(tmp_path):
 
 
 def test_reports_show_the_test_range_evaluations_recorded_with_the_weights():
-    from tvf.experiment.report import reported_record
-
     record = fake_provenance()
     assert reported_record(record) is record  # nothing recorded later: the experiment's own results
     tested = {"all": entry(0.5, 0.4, 0.6, 280), "unseen": entry(0.444, 0.37, 0.52)}
@@ -200,5 +207,24 @@ def test_reports_show_the_test_range_evaluations_recorded_with_the_weights():
     ]  # fmt: skip
     view = reported_record(record)
     assert view["results"] == {"gctn": tested}  # the entry named by the label, not the variant
-    assert view["task_results"]["gctn"] == [{"task": "put-t", "success": 0.25, "episodes": 17}]
+    (cell,) = view["task_results"]["gctn"]
+    assert cell == {
+        "task": "put-t",
+        "success": 0.25,
+        "episodes": 17,
+        "successes": 4,
+        "ci95": list(wilson(4, 17)),
+        "progress": None,
+    }  # an older record: no progress kept
     assert view["experiment"]["episodes"] == 17 and view["models"] == record["models"]
+    _, rows = shipped_rows(view)
+    assert ("task", "put-t", [f"**{success_cell(cell)}**"]) in rows and "25.0% [" in success_cell(cell)
+
+
+def test_the_real_shipped_record_renders_per_task_and_on_average():
+    """The quick start's report of the committed weights: every recorded method, task by task."""
+    view = reported_record(provenance())
+    methods, rows = shipped_rows(view)
+    assert methods and len(view["task_results"][methods[0]]) == 14
+    cells = {name: cells for _, name, cells in rows}
+    assert all("%" in c for c in cells["put-t"]) and len(cells["put-t"]) == len(methods)

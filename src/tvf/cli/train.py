@@ -16,7 +16,7 @@ import tyro
 from tvf.cli.common import check_output_dir
 from tvf.errors import TvfError
 from tvf.io import read_json
-from tvf.train.trainer import TrainConfig
+from tvf.train.config import TrainConfig
 
 
 @dataclass(frozen=True)

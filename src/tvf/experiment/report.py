@@ -82,6 +82,12 @@ def task_row(summary: dict, task: str) -> dict | None:
     return next((r for r in summary.get("tasks", []) if r["task"] == task), None)
 
 
+def _mean_progress(rows: list[dict]) -> float | None:
+    """Mean progress of the rows, None when any lacks it (an older recorded evaluation)."""
+    values = [r.get("progress") for r in rows]
+    return None if None in values else float(np.mean(values))
+
+
 def group_average(summary: dict, tasks: list[str]) -> dict | None:
     """Average over the ``tasks`` present in ``summary``: mean per-task success, the Wilson 95% interval of
     the pooled successes/episodes, mean progress, episodes and number of tasks; None if none is present."""
@@ -93,7 +99,7 @@ def group_average(summary: dict, tasks: list[str]) -> dict | None:
     return {
         "success": float(np.mean([r["success"] for r in rows])),
         "ci95": list(wilson(k, n)),
-        "progress": float(np.mean([r["progress"] for r in rows])),
+        "progress": _mean_progress(rows),
         "episodes": n,
         "tasks": len(rows),
     }
@@ -109,12 +115,13 @@ def success_cell(entry: dict | None) -> str:
 
 def progress_cell(entry: dict | None) -> str:
     """Mean progress in percent, or "–"."""
-    return MISSING if entry is None else f"{100 * entry['progress']:.1f}%"
+    return MISSING if entry is None or entry.get("progress") is None else f"{100 * entry['progress']:.1f}%"
 
 
 def best_methods(methods: list[str], entries: list[dict | None], key: str) -> set[str]:
     """The non-oracle methods with the highest ``key`` (all of them on a tie)."""
-    values = {m: e[key] for m, e in zip(methods, entries, strict=True) if e is not None and m != "oracle"}
+    values = {m: e[key] for m, e in zip(methods, entries, strict=True)
+              if e is not None and e.get(key) is not None and m != "oracle"}  # fmt: skip
     if not values:
         return set()
     top = max(values.values())
@@ -231,9 +238,17 @@ def reported_record(record: dict) -> dict:
     first = next(iter(chosen.values()))
     experiment = {**record.get("experiment", {}), "episodes": first["episodes"]}
     experiment["seed_start"] = first["seed_start"]
-    per_task = {m: [{"task": t, **r} for t, r in e["tasks"].items()] for m, e in chosen.items()}
+    per_task = {m: [_task_cell(t, r) for t, r in e["tasks"].items()] for m, e in chosen.items()}
     results = {m: e["results"] for m, e in chosen.items()}
     return {**record, "experiment": experiment, "results": results, "task_results": per_task}
+
+
+def _task_cell(task: str, recorded: dict) -> dict:
+    """A recorded per-task result as a summary row (success, successes, episodes, Wilson interval,
+    progress; records written before the full rows were kept lack the progress: None)."""
+    n = recorded["episodes"]
+    k = recorded.get("successes", round(recorded["success"] * n))
+    return {"task": task, "successes": k, "ci95": list(wilson(k, n)), "progress": None, **recorded}
 
 
 def shipped_entry(shipped: dict, method: str, split: str) -> dict | None:

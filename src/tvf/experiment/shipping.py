@@ -140,6 +140,10 @@ def ship_weights(exp_weights: Path, target: Path, preset: str = weights.SHIPPED_
     write_model_card(target)
 
 
+TASK_KEYS = ("success", "successes", "episodes", "progress", "ci95")
+"""What an evaluation records per task (the summary's row), enough for the reports' cells."""
+
+
 def record_evaluation(
     eval_dir: str | Path, folder: str | Path | None = None, name: str | None = None
 ) -> dict:  # fmt: skip
@@ -164,7 +168,7 @@ def record_evaluation(
         "seed_range": seed_range(settings["seed_start"]),
         "settings": {k: v for k, v in settings.items() if k not in EVAL_KEYS},
         "results": group_results(summary),
-        "tasks": {r["task"]: {"success": r["success"], "episodes": r["episodes"]} for r in summary["tasks"]},
+        "tasks": {r["task"]: {k: r[k] for k in TASK_KEYS if k in r} for r in summary["tasks"]},
     }
     record = weights.provenance(folder)
     if not record.get("models"):

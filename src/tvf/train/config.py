@@ -1,0 +1,65 @@
+"""The flags of a training run (`tvf train gctn|vf`), as a frozen dataclass without heavy imports: the
+command line builds its parser from it, so `tvf --help` does not import torch (the trainer does)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Flags shared by `tvf train gctn` and `tvf train vf`."""
+
+    data: Path
+    """Dataset root (with train/ and test/) or a train split folder, made by `tvf demos`."""
+    out: Path
+    """Run directory (created; holds config.json, metrics.jsonl, tb/, checkpoints/)."""
+    demos: int = 10
+    """Demonstrations per task drawn for this run (the subset depends on --seed)."""
+    preset: str = "lite"
+    """Model size: paper | lite | smoke."""
+    steps: int | None = None
+    """Optimiser steps in total (a resumed run continues up to this number); default: the preset's recipe
+    (lite: GCTN 21000, VF 3000)."""
+    batch: int | None = None
+    """Batch size; default: the preset's recipe (lite: GCTN 2, VF 8)."""
+    lr: float | None = None
+    """Learning rate (the peak one with --schedule cosine); default: the preset's recipe."""
+    schedule: str | None = None
+    """constant | cosine: linear warm-up over --warmup steps, then a cosine decay to 0 at --steps
+    (a cosine run cannot later be extended to more steps); default: the preset's recipe."""
+    warmup: int | None = None
+    """Linear warm-up steps of the cosine schedule; default: the preset's recipe."""
+    seed: int = 0
+    """Run seed: demo subset, weight initialisation and every batch's augmentation."""
+    tasks: str = "train"
+    """Tasks to train on: train | unseen | all | NAME[,NAME...]."""
+    task_file: Path | None = None
+    """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
+    vf_head: str | None = None
+    """VF only: image (the reference's) | blend (edits the input) | local (redraws only the pick and place
+    windows); docs/models.md; default: the preset's."""
+    vf_changed_weight: float | None = None
+    """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
+    reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss"); default: the preset's
+    recipe."""
+    val_data: Path | None = None
+    """Test split for validation; default: the `test` folder beside the train split, if any."""
+    val_every: int = 250
+    val_samples: int = 48
+    checkpoint_every: int = 250
+    log_every: int = 25
+    images_every: int = 1
+    """TensorBoard images at every Nth validation and the last (GCTN: pick and place heat maps; VF: input,
+    prediction and truth; of one fixed validation sample); 0: none."""
+    wandb: bool = False
+    """Also log the numbers and images to Weights & Biases (pip install 'tvf[wandb]'; files in RUN/wandb/;
+    WANDB_PROJECT, WANDB_MODE=offline etc. as W&B documents them)."""
+    resume: bool = False
+    """Continue from RUN/checkpoints/last.pt (the config must match)."""
+    device: str = "auto"
+    """auto | cpu | cuda (auto: CUDA when present)."""
+    threads: int = 0
+    """Torch CPU threads (0: torch's default)."""
+    progress: bool = True
