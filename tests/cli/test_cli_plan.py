@@ -153,6 +153,9 @@ def test_a_saved_goal_image_and_a_moved_rig_give_the_same_pixels(capsys, rigs, t
     assert shifted["place"]["pixel"] == record["place"]["pixel"]
     assert shifted["place"]["y"] == pytest.approx(record["place"]["y"] + 0.01, abs=1e-9)
     assert shifted["place"]["x"] == pytest.approx(record["place"]["x"], abs=1e-9)
+    code, _, err = run(capsys, "plan", "--method", "gctn", "--views", str(moved),
+                       "--goal", str(folder / "rig" / "goal"), "--out", str(tmp_path / "mixed"))  # fmt: skip
+    assert code == 2 and "recorded with another workspace" in err and err.count("\n") == 1
 
 
 def test_actions_outside_the_reach_and_unusable_workspaces_are_refused(capsys, rigs, tmp_path):

@@ -266,6 +266,15 @@ def test_verify_compares_each_file_with_the_manifest(dataset):
     assert "differs from its record in manifest.json" in next(iter(check.failures.values()))
 
 
+def test_verify_lists_an_unreadable_manifest_and_still_checks_every_file(dataset):
+    (dataset / "train" / MANIFEST).write_text("{ not json")
+    bad = dataset / "train" / "put-t" / episode_name(2)
+    _damage(bad, lambda f: f["pick"].__setitem__((0, 1), 0.0))
+    check = verify(dataset / "train")
+    assert sorted(check.failures) == sorted([dataset / "train" / MANIFEST, bad])
+    assert "unreadable manifest" in check.failures[dataset / "train" / MANIFEST]
+
+
 def test_train_refuses_a_damaged_file_by_name_before_training(dataset, tmp_path, capsys):
     bad = dataset / "train" / "put-t" / episode_name(2)
     _damage(bad, lambda f: f["pick"].__setitem__((0, 1), 0.0))

@@ -8,6 +8,7 @@ import pytest
 import tvf.weights
 from tvf.errors import TvfError
 from tvf.evaluate.closed_loop import summarise
+from tvf.experiment import shipping
 from tvf.experiment.shipping import (
     model_card,
     record_evaluation,
@@ -166,6 +167,23 @@ def test_upgrade_weights_keeps_the_tensors_and_the_record_and_adds_the_hashes(fo
     assert (folder / MODEL_CARD).read_text() == model_card(record)
     load_model(folder / "gctn-smoke.safetensors", "gctn")
     assert not capsys.readouterr().err  # verified now: no warning
+
+
+def test_a_failed_upgrade_puts_back_every_models_files(folder, monkeypatch):
+    files = sorted(p for p in folder.iterdir() if p.suffix in (".safetensors", ".json"))
+    before = {p: p.read_bytes() for p in files}
+    real = shipping.save_weights
+
+    def second_fails(path, *args, **kwargs):
+        if "vf" in path.name:  # the second model: the first one's files are already rewritten
+            raise OSError("disk trouble")
+        real(path, *args, **kwargs)
+        config_path(path).write_text("{}")  # a changed config, to be put back
+
+    monkeypatch.setattr(shipping, "save_weights", second_fails)
+    with pytest.raises(OSError, match="disk trouble"):
+        upgrade_weights(folder)
+    assert {p: p.read_bytes() for p in files} == before
 
 
 def test_the_committed_model_card_is_what_the_generator_writes(tmp_path, monkeypatch):

@@ -147,6 +147,17 @@ class PlanCmd:
             return read_workspace(self.workspace)
         return folder_workspace(self.views) if self.views.is_dir() else WORKSPACE
 
+    def check_goal_workspace(self, ws: Workspace) -> None:
+        """Goal views recorded with another workspace file than the scene's would be fused on the wrong
+        grid: refused, unless --workspace names the one to use for both."""
+        from tvf.views import folder_workspace
+
+        if self.workspace is None and self.goal.is_dir() and folder_workspace(self.goal) != ws:
+            raise TvfError(
+                f"{self.goal} was recorded with another workspace (its workspace file) than {self.views}; "
+                "record both with one workspace file, or pass --workspace FILE to fuse both on it"
+            )
+
     def run(self) -> None:
         from tvf.api import load_planner
         from tvf.evaluate.recording import RecordedStep
@@ -158,6 +169,7 @@ class PlanCmd:
         out = check_output_dir(self.out)
         ws = self.resolve_workspace()
         check_grid(ws, str(self.workspace or self.views))
+        self.check_goal_workspace(ws)
         scene, goal = load_rgbh(self.views, ws, "--views"), load_rgbh(self.goal, ws, "--goal")
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
                                keep_images=True)  # fmt: skip

@@ -210,8 +210,11 @@ def verify(root: Path, split: str | None = None) -> Verification:
     SHA-256, and each file's content checksum against the manifest's record when the manifest is current.
     A damaged file is listed, not raised, so that every one is named."""
     files = episode_files(root)
-    recorded = {e.path: e.checksum for e in _manifest_infos(root, files) or []}
     infos, failures, unverified = [], {}, 0
+    try:
+        recorded = {e.path: e.checksum for e in _manifest_infos(root, files) or []}
+    except DataError as exc:  # a damaged manifest is one more failure; the files are still checked
+        recorded, failures[root / MANIFEST] = {}, str(exc)
     for path in files:
         try:
             info = read_info(path)

@@ -100,17 +100,23 @@ def upgrade_weights(folder: str | Path | None = None) -> list[Path]:
     (training, evaluations) is kept and the card regenerated. Returns the weights files."""
     folder = _folder(folder)
     record = weights.provenance(folder)
+    models = record.get("models", {})
+    files = [p for e in models.values() for p in (folder / e["file"], config_path(folder / e["file"]))]
+    originals = {p: p.read_bytes() for p in files if p.exists()}
     written = []
-    for kind, entry in record.get("models", {}).items():
-        path = folder / entry["file"]
-        before = path.read_bytes()
-        model, ckpt = load_model(path, kind)
-        save_weights(path, model, ckpt.step, ckpt.config, ckpt.extra)
-        if path.read_bytes() != before:  # save_weights writes the same bytes for the same tensors
-            atomic_write_bytes(path, before)
-            raise TvfError(f"{path}: re-saving changed its bytes; kept the old file, nothing upgraded")
-        entry["sha256"] = {name: sha256_file(folder / name) for name in (path.name, config_path(path).name)}
-        written.append(path)
+    try:
+        for kind, entry in models.items():
+            path = folder / entry["file"]
+            model, ckpt = load_model(path, kind)
+            save_weights(path, model, ckpt.step, ckpt.config, ckpt.extra)
+            if path.read_bytes() != originals[path]:  # the same tensors: the same bytes
+                raise TvfError(f"{path}: re-saving changed its bytes; kept the old files, nothing upgraded")
+            entry["sha256"] = {p.name: sha256_file(p) for p in (path, config_path(path))}
+            written.append(path)
+    except BaseException:
+        for p, data in originals.items():  # every model's files as they were: the record still holds
+            atomic_write_bytes(p, data)
+        raise
     atomic_write_json(folder / PROVENANCE, record)
     write_model_card(folder)
     return written
