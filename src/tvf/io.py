@@ -58,6 +58,14 @@ def as_disk_full(exc: BaseException, path: str | Path = "") -> DiskFullError | N
     return None
 
 
+def raise_if_disk_full(exc: BaseException, path: str | Path) -> None:
+    """Re-raise ``exc`` as a :class:`DiskFullError` naming ``path`` when it is a full disk in another form
+    (call it in an ``except`` block, then ``raise`` for every other error)."""
+    full = as_disk_full(exc, path)
+    if full is not None and full is not exc:
+        raise full from exc
+
+
 def note(message: str) -> None:
     """A one-line note on stderr about something tvf repaired or ignored (the work goes on)."""
     print(f"tvf: note: {message}", file=sys.stderr)
@@ -93,9 +101,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         commit(tmp, path)
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        full = as_disk_full(exc, path)
-        if full is not None and full is not exc:
-            raise full from exc
+        raise_if_disk_full(exc, path)
         raise
 
 
@@ -183,9 +189,7 @@ def append_jsonl(path: str | Path, record: dict) -> None:
         except BaseException as exc:
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, end)
-            full = as_disk_full(exc, path)
-            if full is not None and full is not exc:
-                raise full from exc
+            raise_if_disk_full(exc, path)
             raise
     finally:
         os.close(fd)

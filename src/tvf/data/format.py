@@ -96,6 +96,22 @@ def subpixel_to_pixel(rowcol: np.ndarray) -> np.ndarray:
     return np.floor(np.asarray(rowcol, dtype=np.float64) + 0.5).astype(np.int64)
 
 
+def expected_layout(steps: int, blocks: int) -> dict[str, tuple[tuple[int, ...], type]]:
+    """The shape and type of every array of an episode of ``steps`` steps and ``blocks`` blocks."""
+    t, n = steps, blocks
+    h, w = WORKSPACE.shape
+    return {
+        "color": ((t + 1, h, w, 3), np.uint8),
+        "height": ((t + 1, h, w), np.float32),
+        "pick": ((t, 4), np.float32),
+        "place": ((t, 4), np.float32),
+        "random": ((t,), np.bool_),
+        "progress": ((t + 1,), np.float32),
+        "blocks": ((t + 1, n, 4), np.float32),
+        "targets": ((n, 4), np.float32),
+    }
+
+
 @dataclass
 class Episode:
     """One demonstration in memory. Frame ``t`` is the state before step ``t``; the last frame is the goal."""
@@ -151,19 +167,7 @@ class Episode:
     def validate(self) -> None:
         """Raise DataError if the arrays do not have the documented shapes and types."""
         where = str(self.path) if self.path else f"{self.task} seed {self.seed}"
-        t = self.n_steps
-        n = len(self.targets)
-        h, w = WORKSPACE.shape
-        expect = {
-            "color": ((t + 1, h, w, 3), np.uint8),
-            "height": ((t + 1, h, w), np.float32),
-            "pick": ((t, 4), np.float32),
-            "place": ((t, 4), np.float32),
-            "random": ((t,), np.bool_),
-            "progress": ((t + 1,), np.float32),
-            "blocks": ((t + 1, n, 4), np.float32),
-            "targets": ((n, 4), np.float32),
-        }
+        expect = expected_layout(self.n_steps, len(self.targets))
         for name, (shape, dtype) in expect.items():
             a = getattr(self, name)
             if a.shape != shape or a.dtype != dtype:
@@ -480,17 +484,7 @@ def check_layout(path: Path, f, sums: dict[str, Any] | None) -> None:
     checked before anything is read (a damaged shape must not read zeros or allocate a huge array)."""
     t = len(sums["color"]) - 1 if sums is not None else f["pick"].shape[0]
     n = f["targets"].shape[0] if f["targets"].ndim == 2 else -1
-    h, w = WORKSPACE.shape
-    expect = {
-        "color": ((t + 1, h, w, 3), np.uint8),
-        "height": ((t + 1, h, w), np.float32),
-        "pick": ((t, 4), np.float32),
-        "place": ((t, 4), np.float32),
-        "random": ((t,), np.bool_),
-        "progress": ((t + 1,), np.float32),
-        "blocks": ((t + 1, n, 4), np.float32),
-        "targets": ((n, 4), np.float32),
-    }
+    expect = expected_layout(t, n)
     if sums is not None and len(sums["height"]) != t + 1:
         raise _damaged(path, f"{len(sums['height'])} height checksums for {t + 1} colour frames")
     for name, (shape, dtype) in expect.items():

@@ -31,7 +31,7 @@ from tqdm import tqdm
 from tvf.data.dataset import FAILURES, scan, write_manifest
 from tvf.data.format import SPLITS, DataError, Episode, episode_name, read_info, write_h5
 from tvf.errors import DiskFullError, TvfError
-from tvf.io import TMP_SUFFIX, append_jsonl, as_disk_full, commit, read_jsonl, temp_path
+from tvf.io import TMP_SUFFIX, append_jsonl, as_disk_full, commit, raise_if_disk_full, read_jsonl, temp_path
 from tvf.parallel import make_pool
 from tvf.sim.env import EnvConfig, TvfEnv
 from tvf.sim.oracle import random_schedule
@@ -179,9 +179,7 @@ def episode_job(task: Task, split: str, seed: int, folder: str) -> Outcome:
             write_h5(tmp, episode)
         except BaseException as exc:
             tmp.unlink(missing_ok=True)
-            full = as_disk_full(exc, final)
-            if full is not None and full is not exc:
-                raise full from exc
+            raise_if_disk_full(exc, final)
             raise
         out.tmp = str(tmp)
     return out
@@ -262,9 +260,7 @@ class _Lock:
                 f.write(str(os.getpid()))
         except BaseException as exc:
             self.path.unlink(missing_ok=True)
-            full = as_disk_full(exc, self.path)
-            if full is not None and full is not exc:
-                raise full from exc
+            raise_if_disk_full(exc, self.path)
             raise
         return self
 
