@@ -13,7 +13,7 @@ from tvf.geometry import rotate_pixels
 from tvf.models.checkpoint import load_model, save_checkpoint
 from tvf.models.images import clamp_rgbh, from_rgbh, to_rgbh
 from tvf.models.presets import SMOKE, PresetError
-from tvf.models.vf import CHANGED_HEIGHT_M, VisualForesight, changed_pixel_weights, encode_action, vf_loss
+from tvf.models.vf import CHANGED_MM, VisualForesight, changed_pixel_weights, encode_action, vf_loss
 
 WINDOW = SMOKE.vf_window
 
@@ -171,8 +171,8 @@ def test_blend_head_keeps_untouched_pixels_and_round_trips(tmp_path):
 def test_changed_pixel_weights_single_out_moved_height() -> None:
     current = torch.zeros(2, 8, 8)
     after = current.clone()
-    after[0, 2, 3] = CHANGED_HEIGHT_M * 2  # a block arrived
-    after[1, 5, 5] = CHANGED_HEIGHT_M / 2  # below the threshold: noise, not a change
+    after[0, 2, 3] = CHANGED_MM / 1000 * 2  # a block arrived
+    after[1, 5, 5] = CHANGED_MM / 1000 / 2  # below the threshold: noise, not a change
     weights = changed_pixel_weights(current, after, 9.0)
     assert weights[0, 2, 3] == 10.0 and weights.sum() == 2 * 64 + 9.0
     target = torch.zeros(2, 4, 8, 8)

@@ -34,11 +34,10 @@ from tvf.errors import TvfError
 from tvf.io import atomic_write_bytes
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
-from tvf.models.vf import encode_action, square_masks
+from tvf.models.vf import encode_action, height_changed, square_masks
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
-CHANGED_MM = 5.0
 METHODS = ("vf", "copy", "paste")
 
 
@@ -59,7 +58,7 @@ def transition_metrics(
     pc, ph = from_rgbh(pred)
     tc, th = from_rgbh(target)
     _, ch = from_rgbh(current)
-    changed = (th - ch).abs() * 1000 > CHANGED_MM
+    changed = height_changed(ch, th)
     herr = (ph - th).abs() * 1000
     changed_err = (herr * changed).flatten(1).sum(1) / changed.flatten(1).sum(1).clamp(min=1)
     return {

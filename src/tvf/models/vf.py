@@ -113,18 +113,22 @@ def vf_loss(
     return per_pixel.mean() / RGBH_CHANNELS
 
 
-CHANGED_HEIGHT_M = 0.005
-"""A pixel whose true height moves by more than this between two images changed (as `tvf eval-vf`)."""
+CHANGED_MM = 5.0
+"""A pixel whose true height moves by more than this (mm) between two images changed: the pixels the
+changed-pixel loss weighs and `tvf eval-vf`'s changed-pixel error counts."""
+
+
+def height_changed(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
+    """Bool mask of the pixels whose height (metres) moved by more than :data:`CHANGED_MM`."""
+    return (torch.as_tensor(after) - torch.as_tensor(before)).abs() * 1000 > CHANGED_MM
 
 
 def changed_pixel_weights(
     current_height: torch.Tensor, next_height: torch.Tensor, extra: float
 ) -> torch.Tensor:
-    """Per-pixel loss weights (B, H, W): 1 everywhere, ``1 + extra`` where the height changed by more than
-    :data:`CHANGED_HEIGHT_M` (the picked block's old and new footprint: about 1 % of the image, yet all
-    the search looks at)."""
-    changed = (torch.as_tensor(next_height) - torch.as_tensor(current_height)).abs() > CHANGED_HEIGHT_M
-    return 1.0 + extra * changed.to(torch.float32)
+    """Per-pixel loss weights (B, H, W): 1 everywhere, ``1 + extra`` where :func:`height_changed` (the
+    picked block's old and new footprint: about 1 % of the image, yet all the search looks at)."""
+    return 1.0 + extra * height_changed(current_height, next_height).to(torch.float32)
 
 
 class VisualForesight(nn.Module):
