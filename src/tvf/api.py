@@ -80,11 +80,12 @@ class Planner:
 
 def load_planner(
     method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
-    keep_images: bool = False, **planner,
+    keep_images: bool = False, turns: int | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images (for pictures).
+    pick_branches; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images (for pictures);
+    ``turns`` (1, 2 or 4) averages the GCTN over quarter turns of the scene (default: the method's).
     Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
@@ -94,7 +95,7 @@ def load_planner(
         raise TvfError(f"unknown planner option {unknown[0]!r}; choose k, depth, proposals or pick_branches")
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
-    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, **planner)
+    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, **planner)
     policy = make_policy(spec)
     if hasattr(policy, "keep_images"):
         policy.keep_images = keep_images

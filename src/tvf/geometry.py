@@ -150,6 +150,18 @@ def rotate_pixels(rowcol: np.ndarray, yaw: np.ndarray | float, center: np.ndarra
     return colrow[..., ::-1] + np.asarray(center, dtype=np.float64)
 
 
+def quarter_turn_pixels(rowcol: np.ndarray, turns: int, size: int) -> np.ndarray:
+    """Where integer pixels ``(..., 2)`` of a ``size`` x ``size`` image go under ``np.rot90(image, turns)``
+    (``torch.rot90(x, turns, dims=(-2, -1))``): one turn sends ``(r, c)`` to ``(size - 1 - c, r)``.
+
+    In the world that is a turn of the scene by yaw ``-turns * 90`` degrees about the image centre.
+    """
+    rc = np.asarray(rowcol)
+    for _ in range(turns % 4):
+        rc = np.stack([size - 1 - rc[..., 1], rc[..., 0]], axis=-1)
+    return rc
+
+
 def heights_from_z(z: np.ndarray, ws: Workspace = WORKSPACE) -> np.ndarray:
     """World z -> height above the table in metres."""
     return np.asarray(z) - ws.z_min

@@ -94,3 +94,20 @@ def test_a_policy_with_nothing_to_do_is_a_one_line_error(scene):
     goal = obs["desired_goal"]
     with pytest.raises(TvfError, match="found no action"):
         planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+
+
+def test_a_symmetrised_gctn_turns_its_decision_with_the_scene(scene):
+    from tvf.geometry import quarter_turn_pixels
+
+    _, obs = scene
+    goal = obs["desired_goal"]
+    planner = tvf.load_planner("gctn", turns=4)
+    arrays = (obs["color"], obs["height"], goal["color"], goal["height"])
+    decision = planner.next_action(*arrays)
+    turned = planner.next_action(*(np.ascontiguousarray(np.rot90(a)) for a in arrays))
+    for name in ("pick_pixel", "place_pixel"):
+        expected = quarter_turn_pixels(np.array(getattr(decision, name)), 1, 160)
+        assert tuple(getattr(turned, name)) == tuple(expected.tolist())
+    assert turned.rotation_bin == decision.rotation_bin  # the object's turn does not change
+    with pytest.raises(TvfError, match="--turns must be 1, 2 or 4"):
+        tvf.load_planner("gctn", turns=3)

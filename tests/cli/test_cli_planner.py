@@ -134,3 +134,54 @@ def test_viz_gctn_defaults_to_the_shipped_weights(capsys, tmp_path, smoke_weight
     code, out, err = run(capsys, "viz", "gctn", "--task", "stack-stair", "--out", str(tmp_path))
     assert code == 0, err
     assert (tmp_path / "gctn_decision.png").exists() and (tmp_path / "gctn_maps.npz").exists()
+
+
+def test_ablate_runs_every_cell_resumes_and_matches_a_plain_eval(capsys, tmp_path, smoke_weights):
+    models = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
+    common = ("--method", "tvf-small", *models, "--tasks", "stack-stair", "--episodes", "1")
+    common += ("--seed-start", "1")
+    grid = ("--k", "1,2", "--depth", "1,2", "--out", str(tmp_path / "a"))
+    code, out, err = run(capsys, "ablate", *common, *grid)
+    assert code == 0, err
+    record = json.loads((tmp_path / "a" / "ablation.json").read_text())
+    assert [(c["k"], c["depth"]) for c in record["cells"]] == [(1, 1), (1, 2), (2, 1), (2, 2)]
+    for cell in record["cells"]:
+        meta = json.loads((tmp_path / "a" / f"k{cell['k']}-d{cell['depth']}" / "eval.json").read_text())
+        assert (meta["k"], meta["depth"]) == (cell["k"], cell["depth"])
+        assert cell["groups"]["unseen"]["episodes"] == 1  # stack-stair is an unseen task
+    assert (tmp_path / "a" / "ablation.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| 2 | " in out and "K \\ depth" in (tmp_path / "a" / "ablation.md").read_text()
+    code, out, err = run(capsys, "ablate", *common, *grid)
+    assert code == 0 and out.count("resuming: 1 of 1") == 4  # every cell resumed, nothing re-run
+    code, _, err = run(capsys, "eval", *common, "--out", str(tmp_path / "plain"))
+    assert code == 0, err
+    cell = json.loads((tmp_path / "a" / "k2-d1" / "episodes.jsonl").read_text())
+    plain = json.loads((tmp_path / "plain" / "episodes.jsonl").read_text())
+    assert cell["actions"] == plain["actions"]  # tvf-small is the K=2, depth-1 cell
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--k", "2,x"), "--k takes comma-separated whole numbers"),
+        (("--depth", "0"), "--depth needs at least one value, each at least 1"),
+        (("--method", "gctn"), "--method must be one of tvf-small, tvf-large"),
+        (("--turns", "3"), "--turns must be 1, 2 or 4"),
+    ],
+)
+def test_ablate_refuses_a_bad_grid_in_one_line(capsys, tmp_path, args, message):
+    code, _, err = run(capsys, "ablate", *args, "--out", str(tmp_path / "a"))
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "a").exists()
+
+
+def test_eval_with_turns_records_them_and_refuses_them_without_a_gctn(capsys, tmp_path, smoke_weights):
+    args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1")
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--turns", "4", *args,
+                       "--out", str(tmp_path / "e"))  # fmt: skip
+    assert code == 0, err
+    assert json.loads((tmp_path / "e" / "eval.json").read_text())["turns"] == 4
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))
+    assert code == 2 and "other turns" in err  # a resume with other turns is refused, naming them
+    code, _, err = run(capsys, "eval", "--method", "oracle", "--turns", "2", "--out", str(tmp_path / "o"))
+    assert code == 2 and "oracle has no GCTN to symmetrise" in err

@@ -137,6 +137,8 @@ class PlanCmd:
     workspace: Path | None = None
     """Workspace file (bounds in the base frame, pixel size; docs/real-robot.md); default:
     VIEWS/workspace.yaml when the views are a folder that has one, else today's workspace."""
+    turns: int | None = None
+    """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's)."""
     device: str = "auto"
     """auto | cpu | cuda: where the models run."""
 
@@ -172,7 +174,7 @@ class PlanCmd:
         self.check_goal_workspace(ws)
         scene, goal = load_rgbh(self.views, ws, "--views"), load_rgbh(self.goal, ws, "--goal")
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
-                               keep_images=True)  # fmt: skip
+                               keep_images=True, turns=self.turns)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)
         for name, pose in (("pick", poses[0]), ("place", poses[1])):

@@ -455,8 +455,13 @@ class GCTN(nn.Module):
         Returns pick (B, 2), place (B, 2), rotation bin of a full turn (B,) and maps {"pick": (B, H, W)
         logits, "place": (B, R, H, W) logits}.
         """
-        pick_logits = self.pick_logits(current, goal)
-        pick = argmax_pixels(pick_logits)
-        place_logits = self.place_map(current, goal, pick)
-        place, channel = argmax_places(place_logits)
-        return pick, place, self.channel_bins[channel], {"pick": pick_logits, "place": place_logits}
+        return greedy_action(self, current, goal)
+
+
+def greedy_action(model, current: torch.Tensor, goal: torch.Tensor):
+    """:meth:`GCTN.act` for any model with ``pick_logits``, ``place_map`` and ``rotation_bins``."""
+    pick_logits = model.pick_logits(current, goal)
+    pick = argmax_pixels(pick_logits)
+    place_logits = model.place_map(current, goal, pick)
+    place, channel = argmax_places(place_logits)
+    return pick, place, model.rotation_bins(channel), {"pick": pick_logits, "place": place_logits}

@@ -13,6 +13,7 @@ import torch
 from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
+from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig
 from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
@@ -32,6 +33,8 @@ class PolicySpec:
     """Proposal rule override (kmeans | nms; docs/planner.md)."""
     pick_branches: int | None = None
     """Distinct picks a node branches over (1 = the argmax pick only)."""
+    turns: int | None = None
+    """Quarter turns of the scene the GCTN's maps are averaged over (1, 2 or 4; docs/planner.md)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -55,6 +58,8 @@ class Method:
     """The tree-search preset of a TVF method."""
     needs_env: bool = False
     """It reads the simulator (the oracle); learned methods act from images alone."""
+    turns: int = 1
+    """Test-time symmetrisation of its GCTN (:mod:`tvf.models.symmetry`; 1 = none, the paper)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -65,13 +70,18 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
     return OraclePolicy(env)
 
 
+def _load_gctn(spec: PolicySpec):
+    """The spec's GCTN, symmetrised over its turns (the method's unless the spec sets them)."""
+    turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
+    return symmetrized(load_trained(spec.gctn, "gctn"), turns)
+
+
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
-    return GctnPolicy(load_trained(spec.gctn, "gctn"), device)
+    return GctnPolicy(_load_gctn(spec), device)
 
 
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
-    gctn, vf = load_trained(spec.gctn, "gctn"), load_trained(spec.vf, "vf")
-    return TvfPolicy(gctn, vf, planner_of(spec), device, spec.method)
+    return TvfPolicy(_load_gctn(spec), load_trained(spec.vf, "vf"), planner_of(spec), device, spec.method)
 
 
 METHODS: dict[str, Method] = {
@@ -124,6 +134,12 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
     method = get_method(spec.method)
     if method.planner is not None:
         planner_of(spec)  # a bad K or depth fails before any model is read
+    if spec.turns is not None:
+        if "gctn" not in method.models:
+            raise TvfError(
+                f"{spec.method} has no GCTN to symmetrise; --turns needs gctn, tvf-small or tvf-large"
+            )
+        check_turns(spec.turns)
     return method.build(spec, env, pick_device(spec.device))
 
 
