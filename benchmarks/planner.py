@@ -6,7 +6,8 @@ with TVF-Large (K=3, depth 3: GCTN on 1 + 3 + 9 states, VF on 3 + 9 + 27 childre
 they exist (realistic proposal counts); other presets use seeded random weights.
 
 ``--rules`` also times TVF-Large under other proposal rules side by side (same models, same run),
-e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks).
+e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks; a further
+``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -23,6 +24,7 @@ from common import best_seconds
 from tvf.models.gctn import GCTN
 from tvf.models.images import to_rgbh
 from tvf.models.presets import get_preset
+from tvf.models.symmetry import symmetrized
 from tvf.models.vf import VisualForesight
 from tvf.planning.search import PlannerConfig, TreeSearch
 
@@ -55,10 +57,20 @@ def first_observation(task: str, seed: int = 1):
     return to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
 
 
-def rule_config(rule: str) -> dict:
-    """PlannerConfig fields of a rule name: kmeans | nms | nms+picksP."""
-    name, _, picks = rule.partition("+picks")
-    return {"proposals": name, **({"pick_branches": int(picks)} if picks else {})}
+def rule_config(rule: str) -> tuple[dict, int]:
+    """PlannerConfig fields and GCTN turns of a rule name: kmeans | nms | nms+picksP, each optionally
+    +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry)."""
+    name, *options = rule.split("+")
+    fields: dict = {"proposals": name}
+    turns = 1
+    for option in options:
+        if option.startswith("picks"):
+            fields["pick_branches"] = int(option[len("picks") :])
+        elif option.startswith("turns"):
+            turns = int(option[len("turns") :])
+        else:
+            raise SystemExit(f"unknown rule option {option!r} in {rule!r}; use +picksP or +turnsT")
+    return fields, turns
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str]) -> dict:
@@ -80,7 +92,8 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         row["speedup"] = row["node_by_node_s"] / row["batched_s"]
         out[name] = row
     for rule in rules:
-        search = TreeSearch(gctn, vf, PlannerConfig(k=3, depth=3, **rule_config(rule)))
+        fields, turns = rule_config(rule)
+        search = TreeSearch(symmetrized(gctn, turns), vf, PlannerConfig(k=3, depth=3, **fields))
         seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
         out[f"tvf-large/{rule}"] = {"batched_s": seconds, "counts": search.search(current, goal).counts}
     return out

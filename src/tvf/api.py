@@ -84,15 +84,17 @@ def load_planner(
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images (for pictures);
+    pick_branches, turns_depth; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images;
     ``turns`` (1, 2 or 4) averages the GCTN over quarter turns of the scene (default: the method's).
     Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
-    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches"})
+    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches", "turns_depth"})
     if unknown:
-        raise TvfError(f"unknown planner option {unknown[0]!r}; choose k, depth, proposals or pick_branches")
+        raise TvfError(
+            f"unknown planner option {unknown[0]!r}; choose k, depth, proposals, pick_branches or turns_depth"
+        )
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
     spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, **planner)

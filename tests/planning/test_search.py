@@ -295,3 +295,35 @@ def test_the_vf_imagines_the_turn_the_robot_executes():
         executed = bin_action(node.pick, node.place, node.rotation, TURN_ROTATIONS, height)[1, 3]
         assert float(wrap_angle(imagined - executed)) == pytest.approx(0.0, abs=1e-6)
     assert sorted({round(math.degrees(float(wrap_angle(y)))) for y in vf.yaws}) == [-30, 30]
+
+
+def test_turns_depth_symmetrises_the_root_only_and_the_plain_gctn_proposes_below():
+    from tvf.models.symmetry import SymmetrizedGCTN
+
+    preset = get_preset("smoke").replace(symmetry=4, pad_features=True)
+    plain, vf = GCTN(preset, seed=1).eval(), VisualForesight(preset, seed=2).eval()
+    calls = {"plain": 0, "sym": 0}
+
+    class Counted(SymmetrizedGCTN):
+        def pick_logits(self, current, goal):
+            calls["sym"] += 1
+            return super().pick_logits(current, goal)
+
+    original = plain.pick_logits
+
+    def counted_plain(current, goal):
+        calls["plain"] += 1
+        return original(current, goal)
+
+    sym = Counted(plain, 4)
+    gen = torch.Generator().manual_seed(0)
+    current, goal = torch.randn(1, 4, 160, 160, generator=gen), torch.randn(1, 4, 160, 160, generator=gen)
+    every = TreeSearch(sym, vf, PlannerConfig(k=2, depth=2)).search(current, goal)
+    plain.pick_logits = counted_plain
+    calls.update(plain=0, sym=0)
+    root = TreeSearch(sym, vf, PlannerConfig(k=2, depth=2, turns_depth=1)).search(current, goal)
+    assert calls == {"sym": 1, "plain": 4 + 1}  # the root once (4 turns inside), then one plain level
+    ones = [(n.pick.tolist(), n.place.tolist(), n.rotation) for n in every.nodes if n.depth == 1]
+    assert ones == [(n.pick.tolist(), n.place.tolist(), n.rotation) for n in root.nodes if n.depth == 1]
+    with pytest.raises(ValueError, match="turns_depth must be None or at least 1"):
+        PlannerConfig(turns_depth=0)

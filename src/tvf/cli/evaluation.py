@@ -43,6 +43,9 @@ class EvalCmd:
     turns: int | None = None
     """GCTN and TVF: average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (exact C4
     equivariance at 4x the GCTN's cost; default: the method's, 1)."""
+    turns_depth: int | None = None
+    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
+    the plain GCTN (1 = the root's proposals only; default: every level)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...] (see `tvf tasks`)."""
     episodes: int = 20
@@ -68,7 +71,7 @@ class EvalCmd:
         from tvf.policies import PolicySpec
 
         return PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device,
-                          self.proposals, self.pick_branches, self.turns)  # fmt: skip
+                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
@@ -161,6 +164,9 @@ class AblateCmd:
     """Distinct picks per node (default: the method's, at most K)."""
     turns: int | None = None
     """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's)."""
+    turns_depth: int | None = None
+    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
+    the plain GCTN (1 = the root's proposals only; default: every level)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...]."""
     episodes: int = 20
@@ -185,7 +191,7 @@ class AblateCmd:
         ks, depths = parse_grid(self.k, "k"), parse_grid(self.depth, "depth")
         tasks = load_tasks(self.task_file).resolve(self.tasks)
         spec = PolicySpec(self.method, _path(self.gctn), _path(self.vf), None, None, self.device,
-                          self.proposals, self.pick_branches, self.turns)  # fmt: skip
+                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
         ablation_cells(spec, ks, depths)
         make_policy(spec)  # a bad flag or checkpoint fails before any cell runs
         check_output_dir(self.out)

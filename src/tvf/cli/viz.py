@@ -92,6 +92,9 @@ class VizPlan:
     """Distinct picks each node branches over (default 1: the argmax pick only)."""
     turns: int | None = None
     """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's, 1)."""
+    turns_depth: int | None = None
+    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
+    the plain GCTN (1 = the root's proposals only; default: every level)."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --task may name."""
     device: str = "auto"
@@ -105,7 +108,7 @@ class VizPlan:
         if self.method not in PLANNER_METHODS:
             raise TvfError(f"--method must be one of {', '.join(PLANNER_METHODS)}, got {self.method!r}")
         spec = PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device,
-                          self.proposals, self.pick_branches, self.turns)  # fmt: skip
+                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
         policy = make_policy(spec)
         _, obs, goal = first_scene(self.task_file, self.task, self.seed)
         out = check_output_dir(self.out)

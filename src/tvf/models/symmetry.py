@@ -63,6 +63,10 @@ class SymmetrizedGCTN(nn.Module):
         """The transport's goal features of every turned goal, stacked: (turns, B, C, P, P)."""
         return torch.stack([self.gctn.goal_features(_turn(goal, k)) for k in self.quarter_turns])
 
+    def plain_goal_features(self, stacked: torch.Tensor) -> torch.Tensor:
+        """The plain GCTN's goal features from :meth:`goal_features`' stack (its unturned entry)."""
+        return stacked[self.quarter_turns.index(0)]
+
     def place_map(
         self,
         current: torch.Tensor,

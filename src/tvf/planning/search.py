@@ -24,6 +24,7 @@ import torch
 
 from tvf.models.gctn import argmax_pixels
 from tvf.models.images import RGBH_CHANNELS
+from tvf.models.symmetry import SymmetrizedGCTN
 from tvf.planning.proposals import BLOCK_PIXELS, RULES, Proposals, node_proposals, pick_peaks
 
 HEIGHT_CHANNEL = RGBH_CHANNELS - 1
@@ -60,6 +61,9 @@ class PlannerConfig:
     pick_branches: int = 1
     """Distinct picks per node (1: the argmax pick only, the paper). Each of the P best picks gives its
     best place; the other ``k - P`` proposals are the rule's further places at the best pick."""
+    turns_depth: int | None = None
+    """With a symmetrised GCTN (``--turns``, :mod:`tvf.models.symmetry`): the levels, from the root, whose
+    proposals come from the symmetrised maps; deeper levels use the plain GCTN (cheaper). None: all."""
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
@@ -75,6 +79,8 @@ class PlannerConfig:
             raise ValueError(f"nms_radius must be a positive number of pixels, got {self.nms_radius}")
         if self.nms_rotation is not None and not 0 <= self.nms_rotation < 180:
             raise ValueError(f"nms_rotation must be None or degrees in [0, 180), got {self.nms_rotation}")
+        if self.turns_depth is not None and self.turns_depth < 1:
+            raise ValueError(f"turns_depth must be None or at least 1, got {self.turns_depth}")
         if not 0 < self.alpha <= 1:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
 
@@ -143,6 +149,13 @@ class TreeSearch:
         self.gctn, self.vf, self.config = gctn, vf, config
         self.n_rotations = gctn.preset.n_rotations
 
+    def _gctn_at(self, level: int, goal_features: torch.Tensor):
+        """The GCTN that proposes at ``level`` and its goal features: the plain one below ``turns_depth``."""
+        limit = self.config.turns_depth
+        if isinstance(self.gctn, SymmetrizedGCTN) and limit is not None and level > limit:
+            return self.gctn.gctn, self.gctn.plain_goal_features(goal_features)
+        return self.gctn, goal_features
+
     def _picks(self, pick_logits: torch.Tensor) -> list[np.ndarray]:
         """Each state's picks (n_i, 2), best first: the argmax, then further distinct picks."""
         cfg = self.config
@@ -151,16 +164,17 @@ class TreeSearch:
         return [pick_peaks(x, cfg.pick_branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
 
     @torch.no_grad()
-    def _propose(self, states: torch.Tensor, goal: torch.Tensor, goal_features: torch.Tensor):
+    def _propose(self, states: torch.Tensor, goal: torch.Tensor, goal_features: torch.Tensor, level: int):
         """GCTN on every state: its picks (list of (n_i, 2)), its place logits at them (list of
         (n_i, R, H, W)) and the pick logits (N, H, W)."""
+        gctn, goal_features = self._gctn_at(level, goal_features)
         picks, places, pick_logits = [], [], []
         for part in _chunks(states.shape[0], self.config.batched):
-            logits = self.gctn.pick_logits(states[part], goal)
+            logits = gctn.pick_logits(states[part], goal)
             sets = self._picks(logits)
             width = max(len(s) for s in sets)  # states with fewer picks repeat their best one
             padded = np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
-            maps = self.gctn.place_maps(states[part], None, torch.as_tensor(padded), goal_features)
+            maps = gctn.place_maps(states[part], None, torch.as_tensor(padded), goal_features)
             places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]
             picks += sets
             pick_logits.append(logits)
@@ -191,7 +205,7 @@ class TreeSearch:
         images: list[torch.Tensor] = []
         plan = Plan(nodes, -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0))
         for level in range(1, cfg.depth + 1):
-            picks, place_logits, pick_logits = self._propose(states, goal, goal_features)
+            picks, place_logits, pick_logits = self._propose(states, goal, goal_features, level)
             proposals = [self._proposals(p, m) for p, m in zip(picks, place_logits, strict=True)]
             if level == 1:
                 plan.pick_logits, plan.place_logits = pick_logits[0], place_logits[0][0]

@@ -35,11 +35,13 @@ class PolicySpec:
     """Distinct picks a node branches over (1 = the argmax pick only)."""
     turns: int | None = None
     """Quarter turns of the scene the GCTN's maps are averaged over (1, 2 or 4; docs/planner.md)."""
+    turns_depth: int | None = None
+    """TVF: the search levels, from the root, that use the symmetrised GCTN (the rest: the plain one)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
         fields = {"k": self.k, "depth": self.depth, "proposals": self.proposals,
-                  "pick_branches": self.pick_branches}  # fmt: skip
+                  "pick_branches": self.pick_branches, "turns_depth": self.turns_depth}  # fmt: skip
         return {name: value for name, value in fields.items() if value is not None}
 
 
@@ -125,7 +127,8 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
         return replace(method.planner, **changes)
     except ValueError as exc:
         raise TvfError(
-            f"{exc.args[0]}; fix the planner flags (--k, --depth, --proposals, --pick-branches)"
+            f"{exc.args[0]}; fix the planner flags "
+            "(--k, --depth, --proposals, --pick-branches, --turns-depth)"
         ) from None
 
 
