@@ -1,5 +1,5 @@
-"""A real `tvf experiment` sweep with the smoke preset: 2 demo counts x 2 seeds, then a re-run (slow: about
-ten CPU minutes of PyBullet episodes and smoke training)."""
+"""A real `tvf experiment` sweep with the smoke preset: 2 demo counts x 2 seeds, then a re-run (slow: 13 min
+of wall time on the shared 2-core machine, mostly PyBullet episodes and smoke training)."""
 
 from __future__ import annotations
 
