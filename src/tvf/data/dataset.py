@@ -29,11 +29,22 @@ from tvf.data.format import (
     read_episode,
     read_info,
 )
+from tvf.geometry import WORKSPACE
 from tvf.io import atomic_write_bytes
 from tvf.tasks import all_tasks
 
 MANIFEST = "manifest.json"
 FAILURES = "failures.jsonl"
+EAGER_IMAGE_BYTES = 2 << 30
+"""Up to this many bytes of images (2 GiB), :meth:`DemoDataset.load_all` reads them into memory;
+above it they stay on disk (:class:`~tvf.data.format.LazyFrames`)."""
+
+
+def image_bytes(infos: Iterable[EpisodeInfo]) -> int:
+    """Memory the colour (uint8) and height (float32) frames of these episodes take when read."""
+    h, w = WORKSPACE.shape
+    per_frame = h * w * (3 * np.dtype(np.uint8).itemsize + np.dtype(np.float32).itemsize)
+    return sum((e.steps + 1) * per_frame for e in infos)
 
 
 def episode_files(root: Path) -> list[Path]:
@@ -82,9 +93,14 @@ class DemoDataset:
     def load(self, task: str, seed: int) -> Episode:
         return read_episode(self.info(task, seed).path)
 
-    def load_all(self, infos: Iterable[EpisodeInfo] | None = None, lazy: bool = False) -> list[Episode]:
-        """Read the given episodes (default: all); ``lazy`` leaves the images on disk until indexed."""
-        return [read_episode(e.path, lazy) for e in (self.infos() if infos is None else infos)]
+    def load_all(self, infos: Iterable[EpisodeInfo] | None = None, lazy: bool | None = None) -> list[Episode]:
+        """Read the given episodes (default: all); ``lazy`` leaves the images on disk until indexed (each
+        frame read and checked when a sampler draws it). None: lazy when their images would take more
+        than :data:`EAGER_IMAGE_BYTES` of memory (the 1000-demo set: about 8 GB)."""
+        infos = list(self.infos() if infos is None else infos)
+        if lazy is None:
+            lazy = image_bytes(infos) > EAGER_IMAGE_BYTES
+        return [read_episode(e.path, lazy) for e in infos]
 
     def summary(self) -> dict[str, Any]:
         """Per-task and total counts (what ``tvf data info`` prints and the manifest stores)."""

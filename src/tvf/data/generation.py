@@ -17,6 +17,7 @@ and removes temporary files that an interrupted run left behind. A full disk sto
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -477,6 +478,65 @@ def _record(st: _TaskState, out: Outcome, plan: GenerationPlan, report: Generati
     append_jsonl(plan.folder / FAILURES, rec)
     report.failures.append(rec)
     say(f"failed: {out.task} seed {out.seed}: {out.reason}")
+
+
+# ------------------------------------------------------------------------------------ reusing another set
+def reuse_episodes(source: Path, plan: GenerationPlan) -> int:
+    """Start ``plan``'s folder from the episodes of ``source``, another folder of the same split made from
+    the same first seed (another demo count): the episodes a run of ``plan`` would keep are hard-linked
+    (copied where links fail), the failures it would meet are recorded; returns the episodes added.
+
+    Generation keeps the first successes by seed order and an episode depends on its seed only, so such
+    a folder holds a prefix of what ``plan`` keeps (a smaller count) or all of it (a larger one). Per task
+    the plan's seeds are walked in order while ``source`` settles them (an episode, or a recorded failure),
+    up to ``plan.episodes`` episodes; :func:`generate` then runs only the seeds that are left. Episode
+    files are never changed after their rename, so two folders can share one safely.
+    """
+    source = Path(source)
+    folder = plan.folder
+    if not source.is_dir() or (folder.is_dir() and os.path.samefile(source, folder)):
+        return 0
+    have = {(e.task, e.seed) for e in scan(source, plan.split).infos()}
+    failed = read_failures(source)
+    folder.mkdir(parents=True, exist_ok=True)
+    added = 0
+    with _Lock(folder):
+        known = read_failures(folder)
+        for task in plan.tasks:
+            kept = 0
+            for seed in plan.seeds():
+                if kept >= plan.episodes:
+                    break
+                if (task, seed) in have:
+                    added += _share(source / task / episode_name(seed), folder / task / episode_name(seed))
+                    kept += 1
+                elif (task, seed) in failed:
+                    if (task, seed) not in known:
+                        append_jsonl(folder / FAILURES, failed[(task, seed)])
+                else:
+                    break
+    return added
+
+
+def _share(source: Path, target: Path) -> int:
+    """Hard-link ``source`` at ``target`` (a copy, renamed into place, where links fail); 1 if added."""
+    if target.exists():
+        return 0
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(source, target)
+    except FileExistsError:
+        return 0
+    except OSError:  # another file system, or one without links
+        tmp = temp_path(target)
+        try:
+            shutil.copyfile(source, tmp)
+            commit(tmp, target)
+        except BaseException as exc:
+            tmp.unlink(missing_ok=True)
+            raise_if_disk_full(exc, target)
+            raise
+    return 1
 
 
 def generate_tasks(

@@ -68,14 +68,22 @@ def _record_config(cfg: ExperimentConfig) -> None:
     atomic_write_json(path, {**keep, "commands": commands})
 
 
-def stage_data(cfg: ExperimentConfig) -> None:
+def data_plans(cfg: ExperimentConfig) -> list[GenerationPlan]:
+    """What the data stage generates: ``demos`` train-split episodes of each training task and
+    ``test_demos`` test-split episodes of every training and evaluated task, under ``cfg.data_root``."""
     table = cfg.task_table()
     train = tuple(t.name for t in table.resolve(cfg.train_tasks))
     both = tuple(dict.fromkeys([*train, *(t.name for t in table.resolve(cfg.tasks))]))
-    for split, tasks, n in (("train", train, cfg.demos), ("test", both, cfg.test_demos)):
-        report = generate(GenerationPlan(tasks, split, n, cfg.data_root), cfg.workers, tasks=table)
+    return [GenerationPlan(train, "train", cfg.demos, cfg.data_root),
+            GenerationPlan(both, "test", cfg.test_demos, cfg.data_root)]  # fmt: skip
+
+
+def stage_data(cfg: ExperimentConfig) -> None:
+    table = cfg.task_table()
+    for plan in data_plans(cfg):
+        report = generate(plan, cfg.workers, tasks=table)
         if report.short:
-            raise TvfError(f"too few successful demonstrations in {cfg.data_root / split}: {report.short}")
+            raise TvfError(f"too few successful demonstrations in {plan.folder}: {report.short}")
 
 
 def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
@@ -199,12 +207,20 @@ def _check_recipes(cfg: ExperimentConfig) -> None:
             raise TvfError(f"{kind} training: {exc} (set by the experiment's --{kind}-* flags)") from None
 
 
-def run_experiment(cfg: ExperimentConfig) -> Path:
-    """Run the selected stages in order; returns EXP/report.md (when the report stage ran)."""
+def check_experiment(cfg: ExperimentConfig) -> ExperimentConfig:
+    """The configuration with its schedules filled from the preset; a one-line error for a bad stage,
+    method or recipe, before any work."""
     cfg = cfg.resolved()
-    stages = cfg.stage_list()
+    cfg.stage_list()
     cfg.method_list()
     _check_recipes(cfg)
+    return cfg
+
+
+def run_experiment(cfg: ExperimentConfig) -> Path:
+    """Run the selected stages in order; returns EXP/report.md (when the report stage ran)."""
+    cfg = check_experiment(cfg)
+    stages = cfg.stage_list()
     check_output_dir(cfg.out)
     _record_config(cfg)
     for stage in stages:

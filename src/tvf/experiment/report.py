@@ -27,9 +27,18 @@ from tvf.tasks import resolve_tasks
 METHOD_ORDER = tuple(METHODS)
 """Column order (the method registry's); other method names follow in the order given."""
 
-PAPER_UNSEEN_10_DEMOS = {"gctn": 0.554, "tvf-small": 0.715, "tvf-large": 0.785}
+PAPER_UNSEEN = {
+    1: {"gctn": 0.013, "tvf-small": 0.017, "tvf-large": 0.029},
+    10: {"gctn": 0.554, "tvf-small": 0.715, "tvf-large": 0.785},
+    100: {"gctn": 0.490, "tvf-small": 0.623, "tvf-large": 0.717},
+    1000: {"gctn": 0.542, "tvf-small": 0.725, "tvf-large": 0.856},
+}
 """The paper's numbers (Wu et al., IROS 2022; full-size networks), the one copy in the code: average
-success on the 8 unseen tasks with 10 demonstrations per task (docs/results.md)."""
+success on the 8 unseen tasks per number of demonstrations per training task (docs/results.md)."""
+PAPER_UNSEEN_10_DEMOS = PAPER_UNSEEN[10]
+PAPER_TASKS_10_DEMOS = {"put-plane": {"gctn": 0.867, "tvf-large": 1.0},
+                        "stack-building": {"gctn": 0.05, "tvf-large": 0.133}}  # fmt: skip
+"""The paper's only per-task cells (10 demos per task)."""
 PAPER_LABEL = "paper (10 demos)"
 
 
@@ -393,8 +402,13 @@ def report_markdown(
     chart: str | None = None, title: str = "TVF experiment", shipped: dict | None = None,
 ) -> str:  # fmt: skip
     """The report as Markdown; ``gifs`` (task -> method -> path) and ``chart`` are paths relative to it."""
+    return markdown_page(title, report_blocks(summaries, meta, gifs, chart, shipped))
+
+
+def markdown_page(title: str, blocks: list[Block]) -> str:
+    """A titled Markdown document of blocks."""
     lines = [f"# {md_text(title)}"]
-    for block in report_blocks(summaries, meta, gifs, chart, shipped):
+    for block in blocks:
         lines += ["", *md_block(block)]
     return "\n".join(lines) + "\n"
 
@@ -471,10 +485,15 @@ def report_html(
     chart: str | None = None, title: str = "TVF experiment", shipped: dict | None = None,
 ) -> str:  # fmt: skip
     """The report as one self-contained HTML page (inline CSS, no scripts, images by relative path)."""
+    return html_page(title, report_blocks(summaries, meta, gifs, chart, shipped))
+
+
+def html_page(title: str, blocks: list[Block]) -> str:
+    """A titled, self-contained HTML page of blocks (inline CSS, no scripts, images by relative path)."""
     out = ["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
            f"<title>{html.escape(title)}</title>", f"<style>{CSS}</style>", "</head>", "<body>",
            f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
-    for block in report_blocks(summaries, meta, gifs, chart, shipped):
+    for block in blocks:
         out += html_block(block)
     return "\n".join(out + ["</body>", "</html>"]) + "\n"
 
