@@ -7,7 +7,8 @@ they exist (realistic proposal counts); other presets use seeded random weights.
 
 ``--rules`` also times TVF-Large under other proposal rules side by side (same models, same run),
 e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks; a further
-``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``).
+``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``, and ``+tdepthD`` does so at
+the first D levels only, ``--turns-depth``).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -68,8 +69,10 @@ def rule_config(rule: str) -> tuple[dict, int]:
             fields["pick_branches"] = int(option[len("picks") :])
         elif option.startswith("turns"):
             turns = int(option[len("turns") :])
+        elif option.startswith("tdepth"):
+            fields["turns_depth"] = int(option[len("tdepth") :])
         else:
-            raise SystemExit(f"unknown rule option {option!r} in {rule!r}; use +picksP or +turnsT")
+            raise SystemExit(f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT or +tdepthD")
     return fields, turns
 
 

@@ -1,5 +1,7 @@
 """The method registry and the policy contract."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -28,8 +30,10 @@ def test_planner_presets_and_overrides():
     assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
     assert (small.proposals, small.pick_branches) == ("kmeans", 1)  # the paper's rule
     assert planner_of(PolicySpec("tvf-large", k=2)).pick_branches == 2  # a smaller K shares fewer picks
-    paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1))
-    assert paper == PlannerConfig(k=3, depth=3)  # the paper's TVF-L, one flag away
+    paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1, turns=1))
+    assert replace(paper, turns_depth=None) == PlannerConfig(k=3, depth=3)  # the paper's TVF-L (turns 1)
+    assert large.turns_depth == 1 and small.turns_depth is None
+    assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 1, 4]
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
         planner_of(PolicySpec("tvf-huge"))
     with pytest.raises(TvfError, match="does not plan"):
@@ -40,6 +44,17 @@ def test_planner_presets_and_overrides():
     assert (nms.proposals, nms.pick_branches, nms.k) == ("nms", 2, 3)
     with pytest.raises(TvfError, match="unknown proposal rule"):
         planner_of(PolicySpec("tvf-small", proposals="topk"))
+
+
+def test_the_spec_turns_choose_the_symmetrised_gctn():
+    from tvf.models.gctn import GCTN
+    from tvf.models.symmetry import SymmetrizedGCTN
+
+    default, paper = make_policy(PolicySpec("gctn")), make_policy(PolicySpec("gctn", turns=1))
+    assert isinstance(default.model, SymmetrizedGCTN) and default.model.turns == 4
+    assert type(paper.model) is GCTN
+    assert type(make_policy(PolicySpec("tvf-small")).search.gctn) is GCTN
+    assert make_policy(PolicySpec("tvf-large", turns=2)).search.gctn.turns == 2
 
 
 def test_labels_and_unknown_methods():

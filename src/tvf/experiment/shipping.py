@@ -349,11 +349,19 @@ def _results(record: dict) -> list[str]:
         "|---|---|---|---|---|",
     ]
     for name, source, results in rows:
+        name += _flags(source.get("settings") or {})
         lines.append(f"| {name} | {_seeds(source.get('seed_start'))} | {source.get('episodes', '–')} | "
                      f"{_cell(results.get('unseen'))} | {_cell(results.get('train'))} |")  # fmt: skip
     paper = ", ".join(f"{label(m)} {_pct(v)}" for m, v in PAPER_UNSEEN_10_DEMOS.items())
     lines += ["", f"The paper (full-size networks, 10 demos per task), unseen tasks: {paper}."]
     return lines + _per_task(record.get("evaluations", []))
+
+
+def _flags(settings: dict) -> str:
+    """`` (--turns 4, --turns-depth 1)``: the planner flags an evaluation set (none: the method's defaults
+    when it ran)."""
+    given = [f"--{k.replace('_', '-')} {v}" for k, v in settings.items() if v is not None and k != "env"]
+    return f" ({', '.join(given)})" if given else ""
 
 
 def _per_task(evals: list[dict]) -> list[str]:
