@@ -133,6 +133,8 @@ def test_two_processes_train_like_one_and_resume_exactly(data_root, tmp_path):
         "last.pt", "step_000002.pt", "step_000004.pt"]  # fmt: skip
     a, b = weights(full), weights(part)
     assert all(torch.equal(a[k], b[k]) for k in a)  # the interrupted run resumed to the same weights
+    last = Path("checkpoints") / "last.pt"
+    assert (full / last).read_bytes() == (part / last).read_bytes()  # and the same optimiser state
     assert losses(full) == losses(part)
     assert load_checkpoint(part / "checkpoints" / "last.pt", "gctn").step == 4
 
