@@ -6,17 +6,22 @@ RUN/metrics.jsonl            one JSON object per logged step ({"step", "split": 
 RUN/tb/                      TensorBoard events (the same numbers, and validation images)
 RUN/wandb/                   Weights & Biases files, with `tvf train --wandb`
 RUN/checkpoints/step_N.pt    checkpoints (tvf.models.checkpoint format), written atomically
-RUN/checkpoints/last.pt      the newest one; `--resume` continues from it
+RUN/checkpoints/last.pt      the newest one; `--resume` continues from it (`--keep N` deletes all but the
+                             newest N step checkpoints, never last.pt)
 """
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
 from tvf.errors import TvfError
 from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
+
+STEP_FILE = re.compile(r"step_(\d+)\.pt")
+"""The name of a step checkpoint (:meth:`RunDir.step_checkpoint`)."""
 
 
 class RunError(TvfError):
@@ -39,6 +44,13 @@ class RunDir:
 
     def step_checkpoint(self, step: int) -> Path:
         return self.checkpoints / f"step_{step:06d}.pt"
+
+    def step_checkpoints(self) -> list[tuple[int, Path]]:
+        """(step, path) of every RUN/checkpoints/step_N.pt, oldest step first (other files are ignored)."""
+        if not self.checkpoints.is_dir():
+            return []
+        found = [(p, STEP_FILE.fullmatch(p.name)) for p in self.checkpoints.iterdir()]
+        return sorted((int(m.group(1)), p) for p, m in found if m and p.is_file())
 
     def read_config(self) -> dict[str, Any]:
         return read_json(self.config_path, f"is {self.root} a run made by `tvf train`?")

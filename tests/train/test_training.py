@@ -85,7 +85,7 @@ def test_resumed_run_equals_uninterrupted_run_and_redoes_no_step(data_root, tmp_
     resumed = replace(part, steps=4, resume=True)
     job = gctn_job(resumed)
     draw, batches = job.train_batch, []
-    job.train_batch = lambda rng: batches.append(rng) or draw(rng)
+    job.train_batch = lambda rng, part: batches.append(rng) or draw(rng, part)
     train(resumed, job)
     # a restart from step 0 reproduces the same weights (same seed), so count what the resume did
     assert len(batches) == 2  # steps 3 and 4 only
@@ -157,11 +157,11 @@ def test_interrupted_cosine_run_resumes_exactly_and_cannot_be_extended(data_root
     job = gctn_job(part)
     draw, calls = job.train_batch, []
 
-    def interrupted(rng):
+    def interrupted(rng, part):
         calls.append(1)
         if len(calls) == 3:  # the session ends during step 3 (a checkpoint was written at step 2)
             raise KeyboardInterrupt
-        return draw(rng)
+        return draw(rng, part)
 
     job.train_batch = interrupted
     with pytest.raises(KeyboardInterrupt):
@@ -193,7 +193,7 @@ def test_changed_pixel_loss_is_recorded_resumes_only_with_itself_and_rejects_bad
     saved = json.loads((tmp_path / "vf" / "config.json").read_text())
     assert saved["loss"] == {"changed_weight": 20.0}
     assert "loss" not in json.loads((tmp_path / "plain" / "config.json").read_text())
-    batch = vf_job(cfg).train_batch(np.random.default_rng(0))
+    batch = vf_job(cfg).train_batch(np.random.default_rng(0), None)
     weighted, reference = vf_job(cfg).loss(batch)[0], vf_job(plain).loss(batch)[0]
     assert weighted > reference  # the same model and batch: the changed pixels count 21 times
     other = replace(cfg, resume=True, vf_changed_weight=5.0, steps=3)

@@ -58,6 +58,7 @@ KINDS: dict[str, type[_TrainFlags]] = {"gctn": TrainGctn, "vf": TrainVf}
 
 def run_training(cfg: TrainConfig, kind: str) -> None:
     from tvf.runs import RunDir
+    from tvf.train.distributed import world_from_env
     from tvf.train.registry import training_job, with_recipe  # lazy: they import the data pipeline
     from tvf.train.trainer import check_config, train
 
@@ -65,8 +66,9 @@ def run_training(cfg: TrainConfig, kind: str) -> None:
     check_output_dir(cfg.out)
     resolved, job = training_job(cfg, kind)
     val = train(resolved, job)
-    shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"
-    print(f"done: {RunDir(cfg.out).last} ({shown})")
+    if world_from_env().main:  # under torchrun, rank 0 speaks for the run
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"
+        print(f"done: {RunDir(cfg.out).last} ({shown})")
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 
 Both samplers are ``torch.utils.data.IterableDataset`` s that yield whole batches (use a DataLoader
 with ``batch_size=None``), drawn as the reference does (facts §5-6): a task uniformly, an episode of
-it uniformly, then a step uniformly. ``sample(batch_size, rng)`` draws one batch directly; ``item``
+it uniformly, then a step uniformly. ``sample(batch_size, rng)`` draws one batch directly
+(``part=slice(i, j)`` builds only those samples of it: one training process's share); ``item``
 gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the same for many steps.
 
 * :class:`GctnSampler`: (current, goal = last frame, pick pixel, place pixel, rotation bin) from the
@@ -74,9 +75,14 @@ class _Sampler(IterableDataset):
     def eligible_steps(self, episode: Episode) -> np.ndarray:
         raise NotImplementedError
 
+    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
+        """The key sub-pixel points (B, 2, 2) of each sample (pick, place) that the augmentation moves."""
+        raise NotImplementedError
+
     def _build(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
     ) -> dict[str, torch.Tensor]:
+        """The samples of (ep, step, identity) warped by ``se2``, with their moved key ``pixels``."""
         raise NotImplementedError
 
     # ---- drawing
@@ -96,11 +102,25 @@ class _Sampler(IterableDataset):
             step[k] = steps[rng.integers(len(steps))]
         return ep, step, np.zeros(batch_size, bool)
 
-    def sample(self, batch_size: int | None = None, rng: np.random.Generator | None = None) -> dict:
-        """One batch drawn like the reference, augmented if ``self.augment``."""
+    def sample(
+        self, batch_size: int | None = None, rng: np.random.Generator | None = None, part: slice | None = None
+    ) -> dict:
+        """One batch drawn like the reference, augmented if ``self.augment``; with ``part``, only those
+        samples of it are built (bit-identical to slicing the whole batch: every draw and transform of
+        the batch is made first, the images only for ``part``; a training process's share)."""
         rng = rng if rng is not None else np.random.default_rng(self.seed)
         ep, step, identity = self.draw(batch_size or self.batch_size, rng)
-        return self._build(ep, step, identity, rng, self.augment)
+        return self._made(ep, step, identity, rng, self.augment, part)
+
+    def _made(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator,
+        augment: bool, part: slice | None = None,
+    ) -> dict[str, torch.Tensor]:  # fmt: skip
+        se2, pixels = self._transform(self._points(ep, step, identity), rng, augment)
+        if part is not None:
+            ep, step, identity, pixels = ep[part], step[part], identity[part], pixels[part]
+            se2 = Se2(se2.yaw[part], se2.shift[part])
+        return self._build(ep, step, identity, se2, pixels)
 
     def item(self, index: int) -> dict[str, torch.Tensor]:
         """The ``index``-th (episode, step) sample in a fixed order, without augmentation (batch of 1)."""
@@ -115,7 +135,7 @@ class _Sampler(IterableDataset):
         augmentation, no identity samples (``ep`` indexes ``self.episodes``)."""
         ep = np.asarray(ep, np.int64)
         step = np.asarray(step, np.int64)
-        return self._build(ep, step, np.zeros(len(ep), bool), np.random.default_rng(0), False)
+        return self._made(ep, step, np.zeros(len(ep), bool), np.random.default_rng(0), False)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         """Endless batches; each DataLoader worker draws from its own stream (seed, worker id)."""
@@ -177,13 +197,14 @@ class GctnSampler(_Sampler):
     def eligible_steps(self, episode: Episode) -> np.ndarray:
         return np.flatnonzero(~episode.random)
 
-    def _build(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
-    ) -> dict[str, torch.Tensor]:
-        points = np.stack(
+    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
+        return np.stack(
             [np.stack([self._pick_sub[e][s], self._place_sub[e][s]]) for e, s in zip(ep, step, strict=True)]
         )
-        se2, pixels = self._transform(points, rng, augment)
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
+    ) -> dict[str, torch.Tensor]:
         goal = np.array([self.episodes[e].n_steps for e in ep])
         images = warp(self._stack_images(self._frames(ep, step), self._frames(ep, goal)), se2)
         bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
@@ -220,14 +241,15 @@ class VfSampler(_Sampler):
         ep, step, _ = super().draw(batch_size, rng)
         return ep, step, rng.random(batch_size) < self.identity_fraction
 
-    def _build(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator, augment: bool
-    ) -> dict[str, torch.Tensor]:
+    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
         pick = np.stack([self._pick_sub[e][s] for e, s in zip(ep, step, strict=True)])
         place = np.stack([self._place_sub[e][s] for e, s in zip(ep, step, strict=True)])
-        place = np.where(identity[:, None], pick, place)
-        points = np.stack([pick, place], axis=1)
-        se2, pixels = self._transform(points, rng, augment)
+        place = np.where(identity[:, None], pick, place)  # an identity sample places where it picks
+        return np.stack([pick, place], axis=1)
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
+    ) -> dict[str, torch.Tensor]:
         yaw = np.array([self._yaws[e][s] for e, s in zip(ep, step, strict=True)])
         bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
         nxt = np.where(identity, step, step + 1)

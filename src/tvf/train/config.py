@@ -23,7 +23,8 @@ class TrainConfig:
     """Optimiser steps in total (a resumed run continues up to this number); default: the preset's recipe
     (lite: GCTN 21000, VF 3000)."""
     batch: int | None = None
-    """Batch size; default: the preset's recipe (lite: GCTN 2, VF 8)."""
+    """Batch size (the global batch: under torchrun each of N processes builds and trains on 1/N of it);
+    default: the preset's recipe (lite: GCTN 2, VF 8)."""
     lr: float | None = None
     """Learning rate (the peak one with --schedule cosine); default: the preset's recipe."""
     schedule: str | None = None
@@ -49,6 +50,9 @@ class TrainConfig:
     val_every: int = 250
     val_samples: int = 48
     checkpoint_every: int = 250
+    keep: int = 0
+    """Keep only the newest N step checkpoints (RUN/checkpoints/last.pt is always kept; older ones are
+    deleted once the new one is written); 0: keep all."""
     log_every: int = 25
     images_every: int = 1
     """TensorBoard images at every Nth validation and the last (GCTN: pick and place heat maps; VF: input,
@@ -62,4 +66,7 @@ class TrainConfig:
     """auto | cpu | cuda (auto: CUDA when present)."""
     threads: int = 0
     """Torch CPU threads (0: torch's default)."""
+    loader_workers: int = 0
+    """DataLoader worker processes that build the batches ahead of the training step (0: the training
+    thread builds them); the batches are the same either way."""
     progress: bool = True

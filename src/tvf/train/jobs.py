@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +95,7 @@ def _job(
         def draw() -> dict[str, np.ndarray]:
             return pictures(model, val_items[len(val_items) // 2], next(model.parameters()).device)
 
-    return TrainingJob(kind, model, lambda rng: sampler.sample(cfg.batch, rng), loss, validate,
+    return TrainingJob(kind, model, partial(sampler.sample, cfg.batch), loss, validate,
                 _base_config(kind, cfg, model, data), draw)  # fmt: skip
 
 

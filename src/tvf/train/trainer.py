@@ -3,8 +3,11 @@
 The run directory's layout is :mod:`tvf.runs`'s (config.json, metrics.jsonl, tb/, checkpoints/).
 
 Every batch draws its randomness from ``numpy.random.default_rng([seed, step])``, so a resumed run
-sees exactly the batches an uninterrupted run would have seen. A full disk stops the run with one
-:class:`~tvf.errors.DiskFullError` naming the checkpoint that ``--resume`` continues from.
+sees exactly the batches an uninterrupted run would have seen, whether the training thread or
+DataLoader workers (``--loader-workers``) build them. Under torchrun (:mod:`tvf.train.distributed`)
+every process builds its slice of that same global batch, gradients are averaged, and rank 0 alone
+writes the run folder. A full disk stops the run with one :class:`~tvf.errors.DiskFullError` naming the
+checkpoint that ``--resume`` continues from.
 """
 
 from __future__ import annotations
@@ -15,12 +18,14 @@ import math
 import shutil
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from tvf import __version__
@@ -30,6 +35,17 @@ from tvf.io import as_disk_full, atomic_path
 from tvf.models.checkpoint import load_checkpoint, save_checkpoint
 from tvf.runs import RunDir
 from tvf.train.config import TrainConfig
+from tvf.train.distributed import (
+    World,
+    average_gradients,
+    broadcast_module,
+    check_batch,
+    decided_by_main,
+    from_main,
+    joined,
+    mean_numbers,
+    world_from_env,
+)
 from tvf.train.sinks import Sinks, import_wandb, start_wandb
 
 
@@ -70,8 +86,9 @@ class TrainingJob:
 
     kind: str
     model: torch.nn.Module
-    train_batch: Callable[[np.random.Generator], dict[str, torch.Tensor]]
-    """Draw one augmented batch (tensors on the CPU)."""
+    train_batch: Callable[[np.random.Generator, slice | None], dict[str, torch.Tensor]]
+    """``train_batch(rng, part)``: draw one augmented batch from ``rng`` and build the samples ``part`` of
+    it (None: all; tensors on the CPU). Picklable, for DataLoader workers."""
     loss: Callable[[dict[str, torch.Tensor]], tuple[torch.Tensor, dict[str, float]]]
     validate: Callable[[], dict[str, float]] | None
     config: dict[str, Any]
@@ -110,13 +127,19 @@ def check_config(cfg: TrainConfig) -> None:
     weight = cfg.vf_changed_weight
     if weight is not None and not (math.isfinite(weight) and weight >= 0):
         raise TrainError(f"--vf-changed-weight must be 0 (the reference's loss) or more, not {weight}")
-    if cfg.threads < 0:
-        raise TrainError(f"--threads must be 0 (torch's default) or more, not {cfg.threads}")
+    for name in ("threads", "loader_workers", "keep"):
+        if getattr(cfg, name) < 0:
+            flag = f"--{name.replace('_', '-')}"
+            raise TrainError(f"{flag} must be 0 (the default) or more, not {getattr(cfg, name)}")
+    check_batch(cfg.batch, world_from_env())
     if cfg.images_every < 0:
         raise TrainError(f"--images-every must be 0 (no images) or more, not {cfg.images_every}")
     if cfg.wandb:
         import_wandb()  # a missing package fails before the run folder is made
 
+
+_LOSS = "\0loss"
+"""The key under which the step's loss joins its metrics for the average over the processes."""
 
 RESUME_HINT = "re-run the same command with --resume to continue"
 
@@ -145,14 +168,24 @@ def _kept(run: RunDir, saved: list[int]) -> str:
 def _train(cfg: TrainConfig, job: TrainingJob, saved: list[int]) -> dict[str, float]:
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    device = pick_device(cfg.device)
+    world = world_from_env()
+    with joined(world, pick_device(cfg.device)) as device:
+        val = _train_on(cfg, job, saved, world, device)
+        return from_main(world, val)  # every process returns rank 0's validation
+
+
+def _train_on(
+    cfg: TrainConfig, job: TrainingJob, saved: list[int], world: World, device: torch.device
+) -> dict[str, float]:
     run = RunDir(cfg.out)
-    config = {**job.config, "train": asdict(cfg), "version": __version__, "device": str(device)}
-    run.prepare(config, cfg.resume, RESUME_MATCH)
+    config = {**job.config, "train": asdict(cfg), "version": __version__, "device": device.type}
+    if world.several:
+        config["processes"] = world.size
+    decided_by_main(world, lambda: run.prepare(config, cfg.resume, RESUME_MATCH))
     model = job.model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     start, val = 0, {}  # val: the last validation metrics (a resumed run starts from its checkpoint's)
-    if cfg.resume and run.last.exists():
+    if cfg.resume and run.last.exists():  # every process resumes from the same checkpoint
         ckpt = load_checkpoint(run.last, job.kind, expected_config=model.config())
         model.load_state_dict(ckpt.model)
         if ckpt.optimizer is not None:
@@ -160,45 +193,61 @@ def _train(cfg: TrainConfig, job: TrainingJob, saved: list[int]) -> dict[str, fl
         start = ckpt.step
         val = interned(dict((ckpt.extra or {}).get("val") or {}))  # the validation the checkpoint recorded
         saved.append(start)
-    if cfg.resume:  # records logged after the checkpoint (or, without one, at all) are logged again
+    broadcast_module(world, model)  # the processes start from rank 0's weights
+    if cfg.resume and world.main:  # records logged after the checkpoint (or, without one, at all) are
+        # logged again
         run.truncate_metrics(start)
     if start >= cfg.steps:
-        print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
+        if world.main:
+            print(f"{run.root}: already trained for {start} steps (--steps {cfg.steps}); nothing to do")
         return {}
-    sinks = Sinks(run.tb, start if start else None, start_wandb(run.root, config) if cfg.wandb else None)
-    amp = device.type == "cuda"
-    bar = tqdm(
-        total=cfg.steps, initial=start, desc=f"train {job.kind}", unit="step", disable=not cfg.progress
-    )
-    window: list[dict[str, float]] = []
-    t_last = time.perf_counter()
-
-    def checkpoint(step: int) -> None:
-        path = save_checkpoint(
-            run.step_checkpoint(step), model, optimizer, step, model.config(),
-            {"data_fingerprint": job.config.get("data_fingerprint"), "val": val},
-        )  # fmt: skip
-        with atomic_path(run.last) as tmp:
-            shutil.copyfile(path, tmp)
-        saved.append(step)
-
+    sinks = None
+    if world.main:
+        wandb_run = start_wandb(run.root, config) if cfg.wandb else None
+        sinks = Sinks(run.tb, start if start else None, wandb_run)
     failed = True
     try:
-        for step in range(start + 1, cfg.steps + 1):
+        val = _loop(cfg, job, run, optimizer, sinks, world, device, start, val, saved)
+        failed = False
+    finally:
+        if sinks is not None:
+            _close(sinks, quietly=failed)
+    return val
+
+
+def _loop(
+    cfg: TrainConfig, job: TrainingJob, run: RunDir, optimizer: torch.optim.Optimizer, sinks: Sinks | None,
+    world: World, device: torch.device, start: int, val: dict[str, float], saved: list[int],
+) -> dict[str, float]:  # fmt: skip
+    """Steps ``start + 1 .. cfg.steps``; rank 0 logs, validates and checkpoints. Returns the last
+    validation."""
+    model = job.model
+    amp = device.type == "cuda"
+    show = cfg.progress and world.main
+    bar = tqdm(total=cfg.steps, initial=start, desc=f"train {job.kind}", unit="step", disable=not show)
+    window: list[dict[str, float]] = []
+    t_last = time.perf_counter()
+    batches = step_batches(cfg, job, start, world.share(cfg.batch), pin=amp)
+    try:
+        for step, batch in zip(range(start + 1, cfg.steps + 1), batches, strict=False):
             model.train()
-            batch = _to(job.train_batch(np.random.default_rng([cfg.seed, step])), device)
+            batch = _to(batch, device)
             lr = learning_rate(cfg, step)
             for group in optimizer.param_groups:
                 group["lr"] = lr
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
                 loss, metrics = job.loss(batch)
-            if not torch.isfinite(loss):
-                raise TrainError(
-                    f"the loss became {loss.item()} at step {step}; lower --lr or check the data"
-                )
+            # the global batch's numbers (one process: its own), so every process sees the same loss
+            metrics = mean_numbers(world, {**metrics, _LOSS: loss.item()}, device)
+            value = metrics.pop(_LOSS)
+            if not math.isfinite(value):
+                raise TrainError(f"the loss became {value} at step {step}; lower --lr or check the data")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            average_gradients(world, model.parameters())
             optimizer.step()
+            if not world.main:
+                continue
             window.append(metrics)
             bar.update()
             if step % cfg.log_every == 0 or step == cfg.steps:
@@ -219,12 +268,64 @@ def _train(cfg: TrainConfig, job: TrainingJob, saved: list[int]) -> dict[str, fl
                     sinks.images(job.pictures(), step)
                 t_last = time.perf_counter()  # steps_per_s counts training only
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
-                checkpoint(step)
-        failed = False
+                _checkpoint(run, model, optimizer, step, job, val)
+                saved.append(step)
+                prune_checkpoints(run, cfg.keep)  # only now that the new one is safely written
     finally:
         bar.close()
-        _close(sinks, quietly=failed)
     return val
+
+
+def _checkpoint(
+    run: RunDir, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, job: TrainingJob,
+    val: dict[str, float],
+) -> None:  # fmt: skip
+    """Write step ``step``'s checkpoint and then last.pt, each atomically."""
+    path = save_checkpoint(
+        run.step_checkpoint(step), model, optimizer, step, model.config(),
+        {"data_fingerprint": job.config.get("data_fingerprint"), "val": val},
+    )  # fmt: skip
+    with atomic_path(run.last) as tmp:
+        shutil.copyfile(path, tmp)
+
+
+def prune_checkpoints(run: RunDir, keep: int) -> list[Path]:
+    """Delete all but the newest ``keep`` step checkpoints (0: keep all); last.pt is never touched.
+    Returns the deleted files."""
+    if keep <= 0:
+        return []
+    old = [path for _, path in run.step_checkpoints()[:-keep]]
+    for path in old:
+        path.unlink(missing_ok=True)
+    return old
+
+
+class StepBatches(Dataset):
+    """The batch of each step ``steps[i]`` (its randomness keyed on (seed, step)), for DataLoader workers."""
+
+    def __init__(self, draw: Callable, seed: int, steps: range, part: slice | None) -> None:
+        self.draw, self.seed, self.steps, self.part = draw, seed, steps, part
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        return self.draw(np.random.default_rng([self.seed, self.steps[i]]), self.part)
+
+
+def step_batches(
+    cfg: TrainConfig, job: TrainingJob, start: int, part: slice | None, pin: bool = False
+) -> Iterator[dict[str, torch.Tensor]]:
+    """The batches of steps ``start + 1 .. cfg.steps`` in order (this process's ``part`` of each): built
+    in this thread, or ahead of time by ``cfg.loader_workers`` DataLoader workers (the same batches)."""
+    steps = range(start + 1, cfg.steps + 1)
+    if cfg.loader_workers == 0:
+        return (job.train_batch(np.random.default_rng([cfg.seed, step]), part) for step in steps)
+    batches = StepBatches(job.train_batch, cfg.seed, steps, part)
+    loader = DataLoader(
+        batches, batch_size=None, shuffle=False, num_workers=cfg.loader_workers, pin_memory=pin
+    )
+    return iter(loader)
 
 
 def interned(value: Any) -> Any:
