@@ -8,18 +8,25 @@ import pytest
 from tvf.errors import TvfError
 from tvf.models.checkpoint import MODEL_CLASSES
 from tvf.models.presets import PRESETS
-from tvf.train.registry import MODELS, RECIPE_FIELDS, Recipe, recipe, with_recipe
+from tvf.train.registry import BASELINES, KINDS, MODELS, RECIPE_FIELDS, Recipe, get_kind, recipe, with_recipe
 from tvf.train.trainer import TrainConfig
 from tvf.weights import provenance, shipped_name
 
 
 def test_every_kind_has_a_class_a_sampler_a_job_and_a_recipe_per_preset():
-    assert set(MODELS) == set(MODEL_CLASSES) == {"gctn", "vf"}
-    for name, kind in MODELS.items():
-        assert kind.model_class is MODEL_CLASSES[name]
+    assert set(MODELS) == {"gctn", "vf"} and set(BASELINES) == {"latent"}  # the experiment trains MODELS
+    assert set(KINDS) == set(MODEL_CLASSES) == set(MODELS) | set(BASELINES)
+    for name, kind in KINDS.items():
+        assert kind.model_class is MODEL_CLASSES[name] and get_kind(name) is kind
         assert set(kind.recipes) == set(PRESETS)
+    for name, kind in MODELS.items():
         assert kind.shipped_file("lite") == shipped_name(name) == f"{name}-lite.safetensors"
         assert kind.shipped_file("paper") == f"{name}-paper.safetensors"
+    # the latent baseline: the VF's data (sampler) and schedule, nothing shipped
+    assert BASELINES["latent"].sampler_class is MODELS["vf"].sampler_class
+    assert BASELINES["latent"].recipes == MODELS["vf"].recipes
+    with pytest.raises(TvfError, match="no shipped weights of kind 'latent'"):
+        BASELINES["latent"].shipped_file("lite")
 
 
 @pytest.mark.parametrize("kind", ["gctn", "vf"])

@@ -102,7 +102,8 @@ class EvalCmd:
 
 @dataclass(frozen=True)
 class EvalVfCmd:
-    """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines.
+    """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines
+    (and, with --latent RUN, the latent-dynamics baseline of `tvf train latent`).
 
     Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error);
     with --horizon H > 1 also multi-step rollout metrics (the model fed its own predictions for 1..H
@@ -114,6 +115,9 @@ class EvalVfCmd:
     """Dataset root with a test/ split, or a test split folder."""
     vf: Path | None = None
     """VF run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
+    latent: Path | None = None
+    """A latent-dynamics run (`tvf train latent`), .pt or .safetensors file to score beside the VF as method
+    `latent`; default: none."""
     out: Path = Path("out/eval-vf")
     episodes: int = 20
     """Test episodes per task (the reference used the first 20)."""
@@ -122,7 +126,7 @@ class EvalVfCmd:
     task_file: Path | None = None
     """A YAML or JSON file of the extra tasks a dataset made with --task-file holds."""
     device: str = "auto"
-    """auto | cpu | cuda: where the VF runs (auto: CUDA when present)."""
+    """auto | cpu | cuda: where the models run (auto: CUDA when present)."""
 
     def run(self) -> None:
         from tvf.device import pick_device
@@ -134,7 +138,8 @@ class EvalVfCmd:
         device = str(pick_device(self.device))
         out = check_output_dir(self.out)
         summary = evaluate_foresight(self.vf, self.data, out, self.episodes, horizon=self.horizon,
-                                     tasks=load_tasks(self.task_file), device=device)  # fmt: skip
+                                     tasks=load_tasks(self.task_file), device=device,
+                                     latent_checkpoint=self.latent)  # fmt: skip
         print(metrics_markdown(summary))
 
 

@@ -1,4 +1,4 @@
-"""`tvf train gctn|vf`: train the learned models from a demonstration dataset.
+"""`tvf train gctn|vf|latent`: train the learned models from a demonstration dataset.
 
 `tvf train [KIND] --config RUN/config.json [FLAG ...]` relaunches a saved run: the resolved flags saved in
 its config.json become the defaults and the flags given beside --config override them.
@@ -52,8 +52,22 @@ class TrainVf(_TrainFlags):
         run_training(self, "vf")
 
 
-KINDS: dict[str, type[_TrainFlags]] = {"gctn": TrainGctn, "vf": TrainVf}
-"""The `tvf train` subcommand of each model kind (tvf.train.registry.MODELS has the same names)."""
+@dataclass(frozen=True)
+class TrainLatent(_TrainFlags):
+    """Train the latent-dynamics baseline (encoder -> action-conditioned latent step -> decoder) for the
+    foresight table, with the VF's data, sampler and schedule; evaluate it with `tvf eval-vf --latent RUN`.
+
+    Unset recipe flags come from the preset's recipe, the VF's (lite: 3000 steps x batch 8, lr 1e-4);
+    --vf-changed-weight weighs its next-image loss as the VF's. docs/models.md, "Latent-dynamics baseline".
+    Example: tvf train latent --data data/demos --demos 10 --preset lite --out runs/latent
+    """
+
+    def run(self) -> None:
+        run_training(self, "latent")
+
+
+KINDS: dict[str, type[_TrainFlags]] = {"gctn": TrainGctn, "vf": TrainVf, "latent": TrainLatent}
+"""The `tvf train` subcommand of each model kind (tvf.train.registry.KINDS has the same names)."""
 
 
 def run_training(cfg: TrainConfig, kind: str) -> None:
@@ -73,14 +87,17 @@ def run_training(cfg: TrainConfig, kind: str) -> None:
 
 @dataclass(frozen=True)
 class TrainCmd:
-    """Train a model: `tvf train gctn ...` or `tvf train vf ...` (resumable with --resume).
+    """Train a model: `tvf train gctn ...`, `tvf train vf ...` or `tvf train latent ...` (resumable with
+    --resume).
 
     `tvf train --config RUN/config.json --out NEW` relaunches a saved run exactly (the same flags, data
     and seed: the same weights); flags given beside --config override the saved ones.
     """
 
     command: tyro.conf.OmitArgPrefixes[
-        Annotated[TrainGctn, tyro.conf.subcommand("gctn")] | Annotated[TrainVf, tyro.conf.subcommand("vf")]
+        Annotated[TrainGctn, tyro.conf.subcommand("gctn")]
+        | Annotated[TrainVf, tyro.conf.subcommand("vf")]
+        | Annotated[TrainLatent, tyro.conf.subcommand("latent")]
     ]
     """Which model to train."""
 

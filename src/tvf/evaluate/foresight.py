@@ -10,7 +10,8 @@ the unseen tasks separately:
   ``changed_height_mae_mm``: height MAE on the pixels whose true height changed by more than 5 mm.
 
 Baselines: ``copy`` predicts the input unchanged; ``paste`` pastes the place mask (the rotated window
-around the pick, no network) onto the input at the place pixel.
+around the pick, no network) onto the input at the place pixel; ``latent``, when a latent-dynamics run
+is given (:class:`tvf.models.latent.LatentDynamics`), is a learned model scored like the VF.
 
 Multi-step (``horizon`` > 1, :func:`rollout_metrics`): from the real image of every step t, each method
 is fed its own output along the recorded actions of steps t, t+1, ... and scored against the real image
@@ -39,6 +40,7 @@ from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
 METHODS = ("vf", "copy", "paste")
+"""The methods of every evaluation; learned models passed as ``others`` (``latent``) come after the VF."""
 
 
 def paste_baseline(rgbh: torch.Tensor, pick, place, yaw, window: int) -> torch.Tensor:
@@ -94,7 +96,9 @@ PerWindow = dict[str, dict[int, dict[str, np.ndarray]]]
 
 
 @torch.no_grad()
-def rollout_metrics(model: Foresight, sampler: VfSampler, horizon: int) -> tuple[PerWindow, dict]:
+def rollout_metrics(
+    model: Foresight, sampler: VfSampler, horizon: int, others: dict[str, Foresight] | None = None
+) -> tuple[PerWindow, dict]:
     """Open-loop rollouts of every method along the episodes' recorded actions, 1..``horizon`` steps.
 
     A rollout starts from the real image of every step t of every episode; step k (1-based) feeds the
@@ -102,14 +106,17 @@ def rollout_metrics(model: Foresight, sampler: VfSampler, horizon: int) -> tuple
     into model inputs) and compares with the real frame t+k. Horizon k thus covers every window of k
     steps inside an episode. "Changed" pixels (``changed_height_mae_mm``) are those whose true height
     differs from the rollout's start image by more than 5 mm. ``copy`` keeps the start image; ``paste``
-    pastes onto its own previous output. One batched model call per horizon step covers all rollouts.
-    Returns the per-window metrics and the first step's batch with the VF's prediction (``pred``).
+    pastes onto its own previous output. ``others`` ({name: model}) are rolled out as the VF is. One
+    batched model call per horizon step and model covers all rollouts. Returns the per-window metrics and
+    the first step's batch with the VF's prediction (``pred``).
     """
     n_steps = np.array([e.n_steps for e in sampler.episodes], np.int64)
     ep = np.repeat(np.arange(len(n_steps)), n_steps)
     start = np.concatenate([np.arange(n) for n in n_steps])
     left = n_steps[ep] - start  # steps from each window's start to the episode's end
-    out: PerWindow = {m: {} for m in METHODS}
+    others = others or {}
+    methods = ("vf", *others, "copy", "paste")
+    out: PerWindow = {m: {} for m in methods}
     active = np.arange(len(ep))
     state: dict[str, torch.Tensor] = {}
     origin = torch.empty(0)
@@ -123,13 +130,14 @@ def rollout_metrics(model: Foresight, sampler: VfSampler, horizon: int) -> tuple
         target = to_rgbh(b["next_color"], b["next_height"])
         if k == 1:
             origin = to_rgbh(b["current_color"], b["current_height"])
-            state = dict.fromkeys(METHODS, origin)
+            state = dict.fromkeys(methods, origin)
         else:
             sel = torch.from_numpy(keep)
             origin = origin[sel]
             state = {m: v[sel] for m, v in state.items()}
         state = {
             "vf": model.predict_rgbh(state["vf"], b["pick"], b["place"], b["yaw"]),
+            **{n: m.predict_rgbh(state[n], b["pick"], b["place"], b["yaw"]) for n, m in others.items()},
             "copy": origin,
             "paste": paste_baseline(state["paste"], b["pick"], b["place"], b["yaw"], model.window),
         }
@@ -142,11 +150,12 @@ def rollout_metrics(model: Foresight, sampler: VfSampler, horizon: int) -> tuple
 
 def foresight_summary(
     model: Foresight, dataset, max_episodes: int = 20, horizon: int = 1, figure_per_task: int = 1,
-    tasks: TaskTable | None = None,
+    tasks: TaskTable | None = None, others: dict[str, Foresight] | None = None,
 ) -> tuple[dict, list[tuple[str, dict]]]:  # fmt: skip
     """Metrics averaged per split, method and horizon: ({split: {method: {k: {metric, "transitions"}}}},
-    figure samples). ``dataset`` is a :class:`tvf.data.dataset.DemoDataset`; ``tasks`` tells each
-    task's split (training or unseen; pass the table of a --task-file)."""
+    figure samples of the VF). ``dataset`` is a :class:`tvf.data.dataset.DemoDataset`; ``tasks`` tells
+    each task's split (training or unseen; pass the table of a --task-file); ``others`` are more learned
+    models scored beside the VF (:func:`rollout_metrics`)."""
     table = tasks or BUILTIN
     results: dict[str, dict[str, dict[int, dict[str, list[float]]]]] = {}
     figures: list[tuple[str, dict]] = []
@@ -154,7 +163,7 @@ def foresight_summary(
         split = table.get(task).split
         episodes = dataset.load_all(dataset.episodes[task][:max_episodes])
         sampler = VfSampler(episodes, augment=False, identity_fraction=0.0)
-        per_window, first = rollout_metrics(model, sampler, horizon)
+        per_window, first = rollout_metrics(model, sampler, horizon, others)
         for method, by_k in per_window.items():
             for k, metrics in by_k.items():
                 per = results.setdefault(split, {}).setdefault(method, {}).setdefault(k, {})
@@ -182,17 +191,21 @@ def check_horizon(horizon: int) -> None:
 
 def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: Path, max_episodes: int = 20,
                        figure_per_task: int = 1, horizon: int = 1, tasks: TaskTable | None = None,
-                       device: str = "cpu") -> dict:  # fmt: skip
+                       device: str = "cpu", latent_checkpoint: str | Path | None = None) -> dict:  # fmt: skip
     """Evaluate on the test split's transitions; writes metrics.json, metrics.md and figures.
 
-    The one-step metrics are at the top level ({split: {method: metrics}}). With ``horizon`` > 1 a
+    ``latent_checkpoint`` (a latent-dynamics run, .pt or .safetensors) adds the method ``latent``. The
+    one-step metrics are at the top level ({split: {method: metrics}}). With ``horizon`` > 1 a
     ``horizons`` section {split: {method: {"k": metrics}}} for k = 1..horizon (see
     :func:`rollout_metrics`) is added, with tables in metrics.md and the plot horizons.png.
     """
     check_horizon(horizon)
     model = OnDevice(load_trained(vf_checkpoint, "vf", device), torch.device(device))
+    others = {}
+    if latent_checkpoint is not None:
+        others["latent"] = OnDevice(load_trained(latent_checkpoint, "latent", device), torch.device(device))
     dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
-    by_k, figures = foresight_summary(model, dataset, max_episodes, horizon, figure_per_task, tasks)
+    by_k, figures = foresight_summary(model, dataset, max_episodes, horizon, figure_per_task, tasks, others)
     summary: dict = {split: {m: per[1] for m, per in methods.items()} for split, methods in by_k.items()}
     if horizon > 1:
         summary["horizons"] = {

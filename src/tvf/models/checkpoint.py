@@ -5,7 +5,7 @@ Two formats load through the same functions (:func:`load_checkpoint`, :func:`loa
 * a training checkpoint ``*.pt`` (runs, resumable; read with ``torch.load(weights_only=True)``), a dict
   of plain data and tensors::
 
-    {"format": "tvf-checkpoint", "version": 2, "kind": "gctn" | "vf", "config": {...},
+    {"format": "tvf-checkpoint", "version": 2, "kind": "gctn" | "vf" | "latent", "config": {...},
      "step": int, "model": state_dict, "optimizer": state_dict | None, "extra": {...},
      "sha256": content_sha256(every entry above)}
 
@@ -17,8 +17,9 @@ Two formats load through the same functions (:func:`load_checkpoint`, :func:`loa
      "sha256": {"tensors": content_sha256(tensors), "config": SHA-256 of this JSON without "sha256"}}
 
 ``config`` must hold ``{"preset": ModelPreset.as_dict()}`` for :func:`load_model` to rebuild the
-network; anything else in it (and in ``extra``) must be plain Python data (dict, list, str, numbers,
-bool, None) or tensors (checkpoints only).
+network (a class with a ``from_config(preset, config)`` classmethod reads its other entries too: the
+latent model's ``"latent"`` sizes); anything else in it (and in ``extra``) must be plain Python data
+(dict, list, str, numbers, bool, None) or tensors (checkpoints only).
 
 Every load checks the content against its SHA-256 (:func:`content_sha256`: the values, not the
 bytes), so a damaged file is one :class:`CheckpointError` naming it, never other weights. Files of
@@ -45,6 +46,7 @@ import tvf
 from tvf.errors import TvfError
 from tvf.io import atomic_path, atomic_write_bytes, atomic_write_json
 from tvf.models.gctn import GCTN
+from tvf.models.latent import LatentDynamics
 from tvf.models.presets import ModelPreset, PresetError
 from tvf.models.vf import VisualForesight
 from tvf.runs import resolve_checkpoint
@@ -421,16 +423,35 @@ def preset_of(ckpt: Checkpoint) -> ModelPreset:
         ) from e
 
 
-MODEL_CLASSES: dict[str, type[nn.Module]] = {cls.checkpoint_kind: cls for cls in (GCTN, VisualForesight)}
+MODEL_CLASSES: dict[str, type[nn.Module]] = {
+    cls.checkpoint_kind: cls for cls in (GCTN, VisualForesight, LatentDynamics)
+}
 """Model kind -> network class (the training side of each kind lives in tvf.train.registry)."""
 
 
+def build_model(ckpt: Checkpoint) -> nn.Module:
+    """An untrained network of the checkpoint's kind and sizes (its preset; a class's ``from_config`` also
+    reads the rest of the config)."""
+    cls = MODEL_CLASSES[ckpt.kind]
+    preset = preset_of(ckpt)
+    from_config = getattr(cls, "from_config", None)
+    if from_config is None:
+        return cls(preset)
+    try:
+        return from_config(preset, ckpt.config)
+    except (KeyError, TypeError, PresetError) as e:
+        raise CheckpointError(
+            f"checkpoint {ckpt.path} has no valid {ckpt.kind} sizes in its config ({e}); "
+            "retrain with this tvf"
+        ) from e
+
+
 def load_model(path: str | os.PathLike, expected_kind: str) -> tuple[nn.Module, Checkpoint]:
-    """Rebuild a GCTN or VF model from its checkpoint (preset from the config) and load its weights."""
+    """Rebuild a model of ``expected_kind`` from its checkpoint (sizes from its config), load its weights."""
     if expected_kind not in MODEL_CLASSES:
         raise CheckpointError(f"unknown model kind {expected_kind!r}; choose one of {sorted(MODEL_CLASSES)}")
     ckpt = load_checkpoint(path, expected_kind)
-    model = MODEL_CLASSES[expected_kind](preset_of(ckpt))
+    model = build_model(ckpt)
     load_weights(model, ckpt)
     return model, ckpt
 
@@ -448,6 +469,7 @@ def trained_checkpoint(path: str | os.PathLike | None, kind: str) -> Path:
 
 
 def load_trained(path: str | os.PathLike | None, kind: str, device: str | torch.device = "cpu") -> nn.Module:
-    """A model of ``kind`` (gctn | vf) in eval mode, from a run, a file or the shipped weights."""
+    """A model of ``kind`` (gctn | vf | latent) in eval mode, from a run, a file or the shipped weights
+    (``path`` None; none ship for the latent baseline)."""
     model, _ = load_model(trained_checkpoint(path, kind), kind)
     return model.eval().to(device)

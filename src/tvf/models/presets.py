@@ -128,3 +128,60 @@ def get_preset(name: str) -> ModelPreset:
         return PRESETS[name]
     except KeyError:
         raise PresetError(f"unknown model preset {name!r}; choose one of {sorted(PRESETS)}") from None
+
+
+@dataclass(frozen=True)
+class LatentPreset:
+    """Sizes and loss of the latent-dynamics baseline (:mod:`tvf.models.latent`), per model preset.
+
+    Kept apart from :class:`ModelPreset`: a new field there would change the stored preset of every
+    GCTN and VF run, and a resume compares it exactly.
+
+    Attributes:
+        width: width multiplier of the encoder, transition and decoder channels.
+        channels: channels of the 10 x 10 latent grid (one cell per 16 x 16 pixels).
+        recon_weight: loss weight of the current image's reconstruction (squared error).
+        latent_weight: loss weight of the next latent's squared distance to the next image's encoding.
+    """
+
+    width: float
+    channels: int
+    recon_weight: float = 1.0
+    latent_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.width > 0 or self.channels < 1:
+            raise PresetError(f"a latent preset needs width > 0 and channels >= 1, not {self}")
+        for name in ("recon_weight", "latent_weight"):
+            if not getattr(self, name) >= 0:
+                raise PresetError(f"latent {name} must be 0 or more, not {getattr(self, name)}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (stored in the latent model's checkpoints beside the model preset)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> LatentPreset:
+        """Inverse of :meth:`as_dict`; unknown keys raise :class:`PresetError`."""
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise PresetError(f"unknown latent preset fields: {unknown}")
+        return cls(**data)
+
+
+LATENT_PRESETS: dict[str, LatentPreset] = {
+    "paper": LatentPreset(width=1.0, channels=32),
+    "lite": LatentPreset(width=0.5, channels=16),
+    "smoke": LatentPreset(width=0.5, channels=8),
+}
+"""The latent baseline's sizes for each model preset (docs/models.md, "Latent-dynamics baseline")."""
+
+
+def get_latent_preset(name: str) -> LatentPreset:
+    """The latent baseline's sizes for model preset ``name``; unknown names raise :class:`PresetError`."""
+    try:
+        return LATENT_PRESETS[name]
+    except KeyError:
+        raise PresetError(
+            f"no latent-dynamics sizes for preset {name!r}; choose one of {sorted(LATENT_PRESETS)}"
+        ) from None

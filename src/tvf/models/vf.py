@@ -131,7 +131,58 @@ def changed_pixel_weights(
     return 1.0 + extra * height_changed(current_height, next_height).to(torch.float32)
 
 
-class VisualForesight(nn.Module):
+class ImagePredictor:
+    """Inference of a network called as ``model(rgbh, pick, place, yaws) -> next normalised RGB-H``: in
+    chunks of :attr:`inference_chunk`, without gradients, clamped to physical ranges. The VF and the
+    latent-dynamics baseline share it (the interface the planner and `tvf eval-vf` use)."""
+
+    inference_chunk = INFERENCE_CHUNK
+
+    @torch.no_grad()
+    def _predict_chunked(
+        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
+    ) -> torch.Tensor:
+        """Unclamped prediction in chunks of :attr:`inference_chunk` (faster than one big batch on CPU)."""
+        b = rgbh.shape[0]
+        pick = as_pixels(pick_pixels, b)
+        place = as_pixels(place_pixels, b)
+        yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
+        step = self.inference_chunk
+        return torch.cat(
+            [
+                self(rgbh[i : i + step], pick[i : i + step], place[i : i + step], yaws[i : i + step])
+                for i in range(0, b, step)
+            ]
+        )
+
+    @torch.no_grad()
+    def predict_rgbh(
+        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
+    ) -> torch.Tensor:
+        """Inference on normalised RGB-H, clamped to physical ranges (for feeding back to the GCTN)."""
+        return clamp_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
+
+    @torch.no_grad()
+    def predict(
+        self,
+        color: ArrayLike,
+        height: ArrayLike,
+        pick_pixels: ArrayLike,
+        place_pixels: ArrayLike,
+        yaws: ArrayLike,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Physical-unit inference: colour (B, H, W, 3) float in 0..255, height (B, H, W) in 0..0.28 m.
+
+        Inputs: ``color`` (B, H, W, 3) uint8/float 0..255, ``height`` (B, H, W) metres, pixels (B, 2)
+        int (row, col), ``yaws`` (B,) place yaw change in radians (world yaw, geometry's convention).
+        """
+        device = next(self.parameters()).device
+        rgbh = to_rgbh(color, height).to(device)
+        color_out, height_out = from_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
+        return color_out.clamp(0.0, 255.0), height_out.clamp(0.0, MAX_HEIGHT)
+
+
+class VisualForesight(ImagePredictor, nn.Module):
     """ResNet36_4s-like FCN 9 -> 4 channels predicting the next normalised RGB-H image."""
 
     checkpoint_kind = "vf"
@@ -183,46 +234,3 @@ class VisualForesight(nn.Module):
     ) -> torch.Tensor:
         """Training loss (:func:`vf_loss`) of the prediction against the next normalised RGB-H."""
         return vf_loss(self(rgbh, pick_pixels, place_pixels, yaws), target, pixel_weights)
-
-    @torch.no_grad()
-    def _predict_chunked(
-        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
-    ) -> torch.Tensor:
-        """Unclamped prediction in chunks of :data:`INFERENCE_CHUNK` (faster than one big batch on CPU)."""
-        b = rgbh.shape[0]
-        pick = as_pixels(pick_pixels, b)
-        place = as_pixels(place_pixels, b)
-        yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
-        step = INFERENCE_CHUNK
-        return torch.cat(
-            [
-                self(rgbh[i : i + step], pick[i : i + step], place[i : i + step], yaws[i : i + step])
-                for i in range(0, b, step)
-            ]
-        )
-
-    @torch.no_grad()
-    def predict_rgbh(
-        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
-    ) -> torch.Tensor:
-        """Inference on normalised RGB-H, clamped to physical ranges (for feeding back to the GCTN)."""
-        return clamp_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
-
-    @torch.no_grad()
-    def predict(
-        self,
-        color: ArrayLike,
-        height: ArrayLike,
-        pick_pixels: ArrayLike,
-        place_pixels: ArrayLike,
-        yaws: ArrayLike,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Physical-unit inference: colour (B, H, W, 3) float in 0..255, height (B, H, W) in 0..0.28 m.
-
-        Inputs: ``color`` (B, H, W, 3) uint8/float 0..255, ``height`` (B, H, W) metres, pixels (B, 2)
-        int (row, col), ``yaws`` (B,) place yaw change in radians (world yaw, geometry's convention).
-        """
-        device = next(self.parameters()).device
-        rgbh = to_rgbh(color, height).to(device)
-        color_out, height_out = from_rgbh(self._predict_chunked(rgbh, pick_pixels, place_pixels, yaws))
-        return color_out.clamp(0.0, 255.0), height_out.clamp(0.0, MAX_HEIGHT)

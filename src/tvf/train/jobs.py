@@ -1,4 +1,5 @@
-"""The two training jobs: the GCTN (pick and place) and the visual-foresight model."""
+"""The training jobs: the GCTN (pick and place), the visual-foresight (VF) model and the latent-dynamics
+baseline."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from tvf.data.format import DataError, Episode
 from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.models.gctn import GCTN
 from tvf.models.images import from_rgbh, to_rgbh
+from tvf.models.latent import LatentDynamics
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight, changed_pixel_weights
 from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
@@ -162,6 +164,13 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     return job
 
 
+def _prediction_errors(model, b: dict[str, torch.Tensor], current: torch.Tensor) -> tuple[float, float]:
+    """Colour MAE in [0, 1] and height MAE in mm of the clamped prediction of one validation chunk."""
+    color, height = from_rgbh(model.predict_rgbh(current, b["pick"], b["place"], b["yaw"]))
+    return (float((color - b["next_color"]).abs().mean() / 255.0),
+            float((height - b["next_height"]).abs().mean() * 1000.0))  # fmt: skip
+
+
 @torch.no_grad()
 def vf_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
     """Validation loss and physical errors: colour MAE in [0, 1] and height MAE in mm."""
@@ -172,8 +181,52 @@ def vf_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device
         current = to_rgbh(b["current_color"], b["current_height"])
         target = to_rgbh(b["next_color"], b["next_height"])
         losses.append(float(model.loss(current, b["pick"], b["place"], b["yaw"], target)))
-        color, height = from_rgbh(model.predict_rgbh(current, b["pick"], b["place"], b["yaw"]))
-        color_err.append(float((color - b["next_color"]).abs().mean() / 255.0))
-        height_err.append(float((height - b["next_height"]).abs().mean() * 1000.0))
+        color, height = _prediction_errors(model, b, current)
+        color_err.append(color)
+        height_err.append(height)
     return {"loss": float(np.mean(losses)), "color_mae": float(np.mean(color_err)),
             "height_mae_mm": float(np.mean(height_err))}  # fmt: skip
+
+
+def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
+    """Training job for the latent-dynamics baseline: the VF's data, sampler, augmentation and validation;
+    ``--vf-changed-weight`` weighs its next-image loss as the VF's."""
+    if cfg.vf_head is not None:
+        raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
+    model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
+
+    def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        current = to_rgbh(batch["current_color"], batch["current_height"])
+        target = to_rgbh(batch["next_color"], batch["next_height"])
+        weights, extra = None, cfg.vf_changed_weight
+        if extra:
+            weights = changed_pixel_weights(batch["current_height"], batch["next_height"], extra)
+        parts = model.losses(current, batch["pick"], batch["place"], batch["yaw"], target, weights)
+        return parts["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in parts.items()}
+
+    job = _job("latent", cfg, model, sampler_cls, loss, latent_metrics, vf_pictures, identity_fraction=0.0)
+    job.config["latent"] = model.latent.as_dict()
+    # the loss weights: what a resumed run must match
+    job.config["loss"] = {k: v for k, v in model.latent.as_dict().items() if k.endswith("_weight")}
+    if cfg.vf_changed_weight:
+        job.config["loss"]["changed_weight"] = cfg.vf_changed_weight
+    return job
+
+
+@torch.no_grad()
+def latent_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.device) -> dict[str, float]:
+    """Validation loss (``loss``, as the VF's: the next image's L1), the other loss terms and the VF's
+    physical errors."""
+    out: dict[str, list[float]] = {k: [] for k in ("loss", "recon", "latent", "color_mae", "height_mae_mm")}
+    for chunk in range(0, len(items), 8):
+        b = {k: v.to(device) for k, v in _stack(items[chunk : chunk + 8]).items()}
+        current = to_rgbh(b["current_color"], b["current_height"])
+        target = to_rgbh(b["next_color"], b["next_height"])
+        parts = model.losses(current, b["pick"], b["place"], b["yaw"], target)
+        out["loss"].append(float(parts["next"]))
+        out["recon"].append(float(parts["recon"]))
+        out["latent"].append(float(parts["latent"]))
+        color, height = _prediction_errors(model, b, current)
+        out["color_mae"].append(color)
+        out["height_mae_mm"].append(height)
+    return {k: float(np.mean(v)) for k, v in out.items()}

@@ -1,10 +1,11 @@
 """The model registry: per model kind its network class, sampler, training job, default recipe per preset
 and shipped file name, in one place.
 
-`tvf train KIND --preset P` trains with ``MODELS[KIND].recipes[P]`` unless a flag overrides a field, so
+`tvf train KIND --preset P` trains with ``KINDS[KIND].recipes[P]`` unless a flag overrides a field, so
 `tvf train gctn --preset lite` trains exactly the shipped lite recipe; the experiment reads the same
 recipes. Adding a model kind: a class with ``checkpoint_kind`` (tvf.models.checkpoint.MODEL_CLASSES), a
-sampler (tvf.data.samplers), a job (tvf.train.jobs) and an entry here.
+sampler (tvf.data.samplers), a job (tvf.train.jobs) and an entry here: in MODELS when the experiment
+trains and ships it, in BASELINES when it is trained for comparison only.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from torch import nn
 from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.errors import TvfError
 from tvf.models.checkpoint import MODEL_CLASSES
-from tvf.train.jobs import gctn_job, vf_job
+from tvf.train.jobs import gctn_job, latent_job, vf_job
 from tvf.train.trainer import TrainConfig, TrainingJob, check_config
 from tvf.weights import shipped_name
 
@@ -49,6 +50,7 @@ class ModelKind:
         return shipped_name(self.name, preset)
 
 
+VF_RECIPES = {"lite": Recipe(3000, 8, 1e-4), "paper": Recipe(60000, 1, 1e-4), "smoke": Recipe(2, 2, 1e-3)}
 MODELS: dict[str, ModelKind] = {
     "gctn": ModelKind(
         "gctn", MODEL_CLASSES["gctn"], GctnSampler, gctn_job,
@@ -62,16 +64,23 @@ MODELS: dict[str, ModelKind] = {
     ),
     "vf": ModelKind(
         "vf", MODEL_CLASSES["vf"], VfSampler, vf_job,
-        {"lite": Recipe(3000, 8, 1e-4), "paper": Recipe(60000, 1, 1e-4), "smoke": Recipe(2, 2, 1e-3)},
+        VF_RECIPES,
     ),
 }  # fmt: skip
+"""The kinds `tvf experiment` trains, evaluates and ships (tvf.weights.KINDS)."""
+BASELINES: dict[str, ModelKind] = {
+    # the latent-dynamics baseline of the foresight table: the VF's data and schedule
+    "latent": ModelKind("latent", MODEL_CLASSES["latent"], VfSampler, latent_job, VF_RECIPES),
+}
+"""Kinds trained for comparison only (`tvf train KIND`, `tvf eval-vf --latent RUN`): no shipped weights."""
+KINDS: dict[str, ModelKind] = {**MODELS, **BASELINES}
 RECIPE_FIELDS = tuple(f.name for f in fields(Recipe))
 
 
 def get_kind(name: str) -> ModelKind:
-    if name not in MODELS:
-        raise TvfError(f"unknown model kind {name!r}; choose one of {', '.join(MODELS)}")
-    return MODELS[name]
+    if name not in KINDS:
+        raise TvfError(f"unknown model kind {name!r}; choose one of {', '.join(KINDS)}")
+    return KINDS[name]
 
 
 def recipe(kind: str, preset: str) -> Recipe:
