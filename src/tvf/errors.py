@@ -11,6 +11,11 @@ class TvfError(Exception):
     """Base class for every error caused by bad input (names, files, arguments, actions)."""
 
 
+class StaleError(TvfError):
+    """A folder (a run, an evaluation) made from other inputs than the ones given now: other settings,
+    weights or data. The message names what changed; a restart flag lets the command start it again."""
+
+
 class DiskFullError(TvfError):
     """No space left on the device while writing ``path``: the partial file is gone, finished work is kept.
 

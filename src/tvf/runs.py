@@ -17,7 +17,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from tvf.errors import TvfError
+from tvf.errors import StaleError, TvfError
 from tvf.io import append_jsonl, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 
 STEP_FILE = re.compile(r"step_(\d+)\.pt")
@@ -55,8 +55,12 @@ class RunDir:
     def read_config(self) -> dict[str, Any]:
         return read_json(self.config_path, f"is {self.root} a run made by `tvf train`?")
 
-    def prepare(self, config: dict[str, Any], resume: bool, match: tuple[str, ...]) -> None:
-        """Create the run directory, or check that a resumed one agrees with ``config`` on ``match``."""
+    def prepare(
+        self, config: dict[str, Any], resume: bool, match: tuple[str, ...], restart: bool = False
+    ) -> None:
+        """Create the run directory, or check that a resumed one agrees with ``config`` on ``match`` and
+        on the content of its data (``data_content``: a :class:`~tvf.errors.StaleError` naming the changed
+        episodes, or with ``restart`` its checkpoints and logs are deleted and it starts again)."""
         if self.config_path.exists():
             old = self.read_config()
             old.setdefault("schedule", {"name": "constant"})  # runs made before schedules existed
@@ -69,10 +73,28 @@ class RunDir:
                 raise RunError(
                     f"{self.root} was made with different {', '.join(changed)}; resume with the same flags"
                 )
+            stale = data_changes(old.get("data_content"), config.get("data_content"))
+            if stale and not restart:
+                raise StaleError(
+                    f"{self.root} was trained on other data ({stale}); resume on the data it was made "
+                    "with, pass --restart to train it again from step 0, or choose another --out"
+                )
+            if stale:
+                print(f"tvf: {self.root}: the data changed ({stale}); training again from step 0", flush=True)
+                self.clear()
         elif resume and self.last.exists():
             raise RunError(f"{self.root} has checkpoints but no config.json; it is not a tvf run")
         self.root.mkdir(parents=True, exist_ok=True)
         atomic_write_json(self.config_path, config, indent=2)
+
+    def clear(self) -> None:
+        """Delete the run's checkpoints, metrics and TensorBoard events (for a restart)."""
+        for path in (*(p for _, p in self.step_checkpoints()), self.last, self.metrics_path):
+            path.unlink(missing_ok=True)
+        if self.tb.is_dir():
+            for event in self.tb.iterdir():
+                if event.is_file():
+                    event.unlink()
 
     def log(self, record: dict[str, Any]) -> None:
         append_jsonl(self.metrics_path, record)
@@ -91,6 +113,25 @@ class RunDir:
             return
         keep = [r for r in self.metrics() if r.get("step", 0) <= step]
         atomic_write_bytes(self.metrics_path, "".join(json.dumps(r) + "\n" for r in keep).encode())
+
+
+def data_changes(before: dict[str, Any] | None, now: dict[str, Any] | None) -> str:
+    """What differs between two ``data_content`` records ("" when they agree, or when ``before`` is
+    missing: a run from before contents were recorded is trusted on its episode list), e.g.
+    ``2 episodes changed content (train:stack-tower/3, val:put-plane/1), 1 added (train:x/5)``."""
+    if not before or not now or before.get("digest") == now.get("digest"):
+        return ""
+    old, new = before.get("episodes", {}), now.get("episodes", {})
+    parts = []
+    for what, names in (
+        ("changed content", [k for k in old if k in new and old[k] != new[k]]),
+        ("added", [k for k in new if k not in old]),
+        ("removed", [k for k in old if k not in new]),
+    ):
+        if names:
+            shown = ", ".join(sorted(names)[:3]) + (", …" if len(names) > 3 else "")
+            parts.append(f"{len(names)} episode{'s' * (len(names) != 1)} {what} ({shown})")
+    return ", ".join(parts) or f"content {str(before.get('digest'))[:8]}… → {str(now.get('digest'))[:8]}…"
 
 
 def resolve_checkpoint(path: str | Path) -> Path:

@@ -99,3 +99,27 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     assert train_config(lite, "vf").schedule == "constant"
     mine = ExperimentConfig(out=tmp_path, preset="lite", gctn_steps=10, gctn_schedule="constant").resolved()
     assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)
+
+
+def test_changed_data_is_named_and_restart_retrains_and_reevaluates(experiment, tmp_path):
+    import shutil
+    from dataclasses import replace
+
+    from tvf.data.format import read_episode, write_episode
+    from tvf.errors import StaleError
+
+    cfg, _ = experiment
+    copy = replace(cfg, out=tmp_path / "exp")
+    shutil.copytree(cfg.out, copy.out)
+    episode = next((copy.data_root / "train" / "stack-tower").glob("*.h5"))
+    changed = read_episode(episode)
+    changed.height[0] += 0.001  # one frame re-rendered a millimetre higher
+    episode.unlink()
+    write_episode(episode, changed)
+    with pytest.raises(StaleError, match=f"train:stack-tower/{changed.seed}"):
+        run_experiment(replace(copy, stages="train"))
+    before = (copy.out / "eval" / "gctn" / "eval.json").read_text()
+    run_experiment(replace(copy, stages="train,eval", restart=True))
+    after = json.loads((copy.out / "eval" / "gctn" / "eval.json").read_text())
+    assert after["weights"]["gctn"] != json.loads(before)["weights"]["gctn"]  # evaluated with the new weights
+    assert after["weights"]["gctn"] == sha256_file(copy.out / "gctn" / "checkpoints" / "last.pt")

@@ -135,7 +135,8 @@ def _coerce(name: str, value: Any, hint: Any, path: Path) -> Any:
 
 def saved_flags(path: Path, kind: str | None) -> tuple[str, _TrainFlags]:
     """The model kind of the run saved in ``path`` and its flags as a `tvf train KIND` command
-    (``--resume`` off, ``--config`` set to ``path``); ``kind``, when given, must be the run's."""
+    (``--resume`` and ``--restart`` off, ``--config`` set to ``path``); ``kind``, when given, must be the
+    run's."""
     fix = "pass the config.json of a run made by `tvf train`"
     saved = read_json(path, fix)
     if (
@@ -159,7 +160,7 @@ def saved_flags(path: Path, kind: str | None) -> tuple[str, _TrainFlags]:
     missing = [k for k, f in known.items() if k not in values and f.default is MISSING]
     if missing:
         raise TvfError(f"{path} lacks the training flag(s) {', '.join(missing)}; {fix}")
-    return run_kind, cls(**{**values, "resume": False, "config": path})
+    return run_kind, cls(**{**values, "resume": False, "restart": False, "config": path})
 
 
 def relaunch_command(args: list[str]) -> _TrainFlags | None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from tvf.envs import EnvFactory
-from tvf.errors import TvfError
+from tvf.errors import StaleError
 from tvf.evaluate.runner import policy_episode
 from tvf.io import append_jsonl, as_disk_full, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.models.checkpoint import trained_checkpoint
@@ -100,7 +100,7 @@ def evaluate(
     if meta_path.exists() and not restart:
         changed = _changed_settings(meta_path, meta)
         if changed:
-            raise TvfError(
+            raise StaleError(
                 f"{out} holds an evaluation with other {', '.join(changed)} ({meta_path}); "
                 "use the same flags, pass --restart to run it again, or choose another --out"
             )

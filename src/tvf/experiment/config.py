@@ -90,6 +90,9 @@ class ExperimentConfig:
     """After the weights stage, copy EXP/weights over the package's shipped weights (make reproduce)."""
     wandb: bool = False
     """Also log the two training runs to Weights & Biases (pip install 'tvf[wandb]'; docs/training.md)."""
+    restart: bool = False
+    """Start again what its inputs changed under: a training run whose episodes changed content, an
+    evaluation whose weights or settings changed (without it such a folder is refused, naming the change)."""
 
     def resolved(self) -> ExperimentConfig:
         """Fill the training schedules from the preset's recipes (tvf.train.registry)."""

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from tvf.data.generation import GenerationPlan, generate
 from tvf.device import pick_device
-from tvf.errors import TvfError
+from tvf.errors import StaleError, TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
@@ -51,13 +51,16 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device", "wandb")}
+    unrecorded = ("workers", "stages", "ship", "device", "wandb", "restart")
+    keep = {k: v for k, v in asdict(cfg).items() if k not in unrecorded}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
     # a folder made before a flag existed lacks it: it resumes when the flag keeps its (resolved) default
     defaults = json.loads(json.dumps(asdict(ExperimentConfig(out=cfg.out, preset=cfg.preset).resolved()),
                                      default=str))  # fmt: skip
-    changed = sorted(k for k in keep if recorded and recorded.get(k, defaults.get(k)) != keep[k])
+    # the folder's own path is recorded, not compared: a moved (or copied) experiment resumes
+    compared = [k for k in keep if recorded and k != "out"]
+    changed = sorted(k for k in compared if recorded.get(k, defaults.get(k)) != keep[k])
     if changed:
         raise TvfError(
             f"{cfg.out} holds an experiment with other {', '.join(changed)}; "
@@ -91,8 +94,8 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
     overrides = {field: getattr(cfg, flag) for flag, (k, field) in RECIPE_FLAGS.items() if k == kind}
     tc = with_recipe(TrainConfig(
         data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset, seed=cfg.seed,
-        tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, device=cfg.device, wandb=cfg.wandb,
-        **overrides,
+        tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, restart=cfg.restart, device=cfg.device,
+        wandb=cfg.wandb, **overrides,
     ), kind)  # fmt: skip
     every = max(1, tc.steps // 10)
     return replace(tc, val_every=every, checkpoint_every=every, log_every=max(1, min(25, tc.steps)))
@@ -120,9 +123,15 @@ def stage_eval(cfg: ExperimentConfig) -> None:
     tasks = cfg.task_table().resolve(cfg.tasks)
     for method in cfg.method_list():
         _say(f"evaluating {method}: {len(tasks)} tasks x {cfg.episodes} episodes")
-        spec = method_spec(cfg, method)
-        evaluate(spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, cfg.out / "eval" / method,
-                 cfg.step_slack)  # fmt: skip
+        spec, out = method_spec(cfg, method), cfg.out / "eval" / method
+        run = (spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, out, cfg.step_slack)
+        try:
+            evaluate(*run)
+        except StaleError:  # weights retrained (the data changed) or settings changed under it
+            if not cfg.restart:
+                raise
+            _say(f"{out}: its weights or settings changed; evaluating {method} again (--restart)")
+            evaluate(*run, restart=True)
 
 
 def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):

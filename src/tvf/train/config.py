@@ -62,6 +62,9 @@ class TrainConfig:
     WANDB_PROJECT, WANDB_MODE=offline etc. as W&B documents them)."""
     resume: bool = False
     """Continue from RUN/checkpoints/last.pt (the config must match)."""
+    restart: bool = False
+    """With --resume: when the run's training or validation episodes changed content since it was made,
+    delete its checkpoints and metrics and train again from step 0 (without it such a run is refused)."""
     device: str = "auto"
     """auto | cpu | cuda (auto: CUDA when present)."""
     threads: int = 0

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from tvf.data.dataset import demo_subset, open_dataset
-from tvf.data.format import DataError, Episode
+from tvf.data.format import DataError, Episode, episode_checksum
 from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.models.gctn import GCTN
 from tvf.models.images import from_rgbh, to_rgbh
@@ -50,8 +50,23 @@ def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict
         "demos": cfg.demos,
         "episodes": [[e.task, e.seed] for e in episodes],
         "data_fingerprint": fingerprint([[e.task, e.seed, e.n_steps] for e in episodes]),
+        "data_content": data_content({"train": episodes, "val": val_eps}),
     }
     return episodes, val_eps, data
+
+
+def data_content(splits: dict[str, list[Episode]]) -> dict[str, Any]:
+    """The content a run trains and validates on: each episode file's content digest (the SHA-256 of its
+    checksums, which every read checks the arrays against) by ``SPLIT:TASK/SEED``, and one digest of them
+    all. A resume compares it with the run's record (:meth:`tvf.runs.RunDir.prepare`)."""
+    files = {f"{split}:{e.task}/{e.seed}": _content(e) for split, eps in splits.items() for e in eps}
+    return {"digest": fingerprint(sorted(files.items())), "episodes": files}
+
+
+def _content(episode: Episode) -> str:
+    if episode.path is None:
+        return "in memory"
+    return (episode_checksum(episode.path) or "unverified")[:16]  # format 1 files carry no checksums
 
 
 def task_table(cfg: TrainConfig) -> TaskTable:

@@ -131,6 +131,8 @@ def check_config(cfg: TrainConfig) -> None:
         if getattr(cfg, name) < 0:
             flag = f"--{name.replace('_', '-')}"
             raise TrainError(f"{flag} must be 0 (the default) or more, not {getattr(cfg, name)}")
+    if cfg.restart and not cfg.resume:
+        raise TrainError("--restart goes with --resume (it restarts a resumed run whose data changed)")
     check_batch(cfg.batch, world_from_env())
     if cfg.images_every < 0:
         raise TrainError(f"--images-every must be 0 (no images) or more, not {cfg.images_every}")
@@ -181,7 +183,7 @@ def _train_on(
     config = {**job.config, "train": asdict(cfg), "version": __version__, "device": device.type}
     if world.several:
         config["processes"] = world.size
-    decided_by_main(world, lambda: run.prepare(config, cfg.resume, RESUME_MATCH))
+    decided_by_main(world, lambda: run.prepare(config, cfg.resume, RESUME_MATCH, cfg.restart))
     model = job.model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     start, val = 0, {}  # val: the last validation metrics (a resumed run starts from its checkpoint's)
