@@ -36,7 +36,7 @@ class PlannerFlags:
     """TVF: keep place pixels whose probability is at least ALPHA times the best (default 0.01, the
     paper's)."""
     nms_radius: float | None = None
-    """TVF with nms or several picks: pixels between proposals (default 12.8, one block)."""
+    """TVF with nms or several picks: pixels between proposals (default 13, about one block)."""
     turns: int | None = None
     """GCTN and TVF: average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (exact C4
     equivariance at 4x the GCTN's cost; 1: the paper's)."""
