@@ -185,3 +185,29 @@ def test_eval_with_turns_records_them_and_refuses_them_without_a_gctn(capsys, tm
     assert code == 2 and "other turns" in err  # a resume with other turns is refused, naming them
     code, _, err = run(capsys, "eval", "--method", "oracle", "--turns", "2", "--out", str(tmp_path / "o"))
     assert code == 2 and "oracle has no GCTN to symmetrise" in err
+
+
+def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_path, smoke_weights):
+    weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
+    roots = {}
+    for alpha in ("1", "1e-9"):
+        code, _, err = run(
+            capsys, "viz", "plan", "--task", "stack-stair", "--out", str(tmp_path / alpha), "--alpha", alpha,
+            "--nms-radius", "6.4", "--k", "3", "--depth", "1", "--pick-branches", "1", *weights,
+        )  # fmt: skip
+        assert code == 0, err
+        roots[alpha] = len(json.loads((tmp_path / alpha / "plan.json").read_text())["nodes"])
+    assert roots == {"1": 1, "1e-9": 3}  # alpha 1 keeps the best place only, 1e-9 three NMS peaks
+    code, _, err = run(
+        capsys, "eval", "--method", "tvf-small", "--alpha", "0.5", "--nms-radius", "6.4", *weights,
+        "--tasks", "stack-stair", "--episodes", "1", "--out", str(tmp_path / "e"),
+    )  # fmt: skip
+    assert code == 0, err
+    recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
+    assert recorded["alpha"] == 0.5 and recorded["nms_radius"] == 6.4
+    for command in (("eval", "--method", "tvf-large"), ("ablate", "--k", "2", "--depth", "1"),
+                    ("viz", "plan", "--task", "stack-stair")):  # fmt: skip
+        code, _, err = run(capsys, *command, "--alpha", "0", *weights, "--out", str(tmp_path / "bad"))
+        assert code == 2 and "alpha must be in (0, 1]" in err and "--alpha" in err, err
+        code, _, err = run(capsys, *command, "--nms-radius", "-1", *weights, "--out", str(tmp_path / "bad"))
+        assert code == 2 and "nms_radius must be a positive number" in err, err

@@ -6,10 +6,57 @@ and `tvf --help` (or a typo) should not pay for them.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 from tvf.errors import TvfError
 from tvf.io import check_output_dir, check_output_file
 
-__all__ = ["at_least_one", "check_output_dir", "check_output_file"]
+if TYPE_CHECKING:
+    from tvf.policies import PolicySpec
+
+__all__ = ["PlannerFlags", "at_least_one", "check_output_dir", "check_output_file"]
+
+
+@dataclass(frozen=True)
+class PlannerFlags:
+    """The models and planner settings of a method (`tvf eval`, `tvf ablate`, `tvf viz plan`); each flag
+    left out keeps the method's default (docs/planner.md)."""
+
+    gctn: Path | None = None
+    """GCTN run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
+    vf: Path | None = None
+    """VF run folder or checkpoint file (TVF methods); default: the shipped weights."""
+    proposals: str | None = None
+    """TVF: proposal rule, kmeans (the paper's) | nms (places a block apart)."""
+    pick_branches: int | None = None
+    """TVF: distinct picks each node branches over (1: the argmax pick only, the paper's)."""
+    alpha: float | None = None
+    """TVF: keep place pixels whose probability is at least ALPHA times the best (default 0.01, the
+    paper's)."""
+    nms_radius: float | None = None
+    """TVF with nms or several picks: pixels between proposals (default 13, about one block)."""
+    turns: int | None = None
+    """GCTN and TVF: average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (exact C4
+    equivariance at 4x the GCTN's cost; 1: the paper's)."""
+    turns_depth: int | None = None
+    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
+    the plain GCTN (1 = the root's proposals only)."""
+
+    def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
+             ) -> PolicySpec:  # fmt: skip
+        """The policy these flags choose for ``method``."""
+        from tvf.policies import PolicySpec
+
+        return PolicySpec(
+            method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
+            self.turns, self.turns_depth, self.alpha, self.nms_radius,
+        )  # fmt: skip
+
+
+def _path(p: Path | None) -> str | None:
+    return str(p) if p else None
 
 
 def at_least_one(**flags: int) -> None:

@@ -5,12 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from tvf.cli.common import at_least_one, check_output_dir
+import tyro
+
+from tvf.cli.common import PlannerFlags, at_least_one, check_output_dir
 from tvf.seeds import TEST_SEED_START
-
-
-def _path(p: Path | None) -> str | None:
-    return str(p) if p else None
 
 
 @dataclass(frozen=True)
@@ -28,24 +26,12 @@ class EvalCmd:
     """oracle | gctn | tvf-small | tvf-large."""
     out: Path = Path("out/eval")
     """Output directory (re-running the same command resumes)."""
-    gctn: Path | None = None
-    """GCTN run folder (its checkpoints/last.pt), a .pt or .safetensors file; default: the shipped weights."""
-    vf: Path | None = None
-    """VF run directory or checkpoint file (TVF methods); default: the shipped weights."""
     k: int | None = None
     """TVF: place proposals per node (default: the method's, 2 or 3)."""
     depth: int | None = None
     """TVF: search depth (default: the method's, 1 or 3)."""
-    proposals: str | None = None
-    """TVF: proposal rule, kmeans (the paper's) | nms (places a block apart; docs/planner.md)."""
-    pick_branches: int | None = None
-    """TVF: distinct picks each node branches over (default 1: the argmax pick only)."""
-    turns: int | None = None
-    """GCTN and TVF: average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (exact C4
-    equivariance at 4x the GCTN's cost; default: the method's, 1)."""
-    turns_depth: int | None = None
-    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
-    the plain GCTN (1 = the root's proposals only; default: every level)."""
+    planner: tyro.conf.OmitArgPrefixes[PlannerFlags] = PlannerFlags()
+    """The models and the planner's settings (default: the method's)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...] (see `tvf tasks`)."""
     episodes: int = 20
@@ -68,10 +54,7 @@ class EvalCmd:
     weights files' content changed; this starts over instead)."""
 
     def spec(self):
-        from tvf.policies import PolicySpec
-
-        return PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device,
-                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
+        return self.planner.spec(self.method, self.k, self.depth, self.device)
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
@@ -159,19 +142,8 @@ class AblateCmd:
     """Search depths, comma-separated."""
     method: str = "tvf-large"
     """tvf-small | tvf-large: the planner whose other settings (proposal rule, picks) every cell keeps."""
-    gctn: Path | None = None
-    """GCTN run folder, .pt or .safetensors file; default: the shipped weights."""
-    vf: Path | None = None
-    """VF run folder, .pt or .safetensors file; default: the shipped weights."""
-    proposals: str | None = None
-    """Proposal rule, kmeans (the paper's) | nms (default: the method's)."""
-    pick_branches: int | None = None
-    """Distinct picks per node (default: the method's, at most K)."""
-    turns: int | None = None
-    """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's)."""
-    turns_depth: int | None = None
-    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
-    the plain GCTN (1 = the root's proposals only; default: every level)."""
+    planner: tyro.conf.OmitArgPrefixes[PlannerFlags] = PlannerFlags()
+    """The models and the planner's other settings (default: the method's; picks at most K)."""
     tasks: str = "unseen"
     """train | unseen | all | NAME[,NAME...]."""
     episodes: int = 20
@@ -189,14 +161,13 @@ class AblateCmd:
 
     def run(self) -> None:
         from tvf.experiment.ablation import ablation_cells, parse_grid, run_ablation
-        from tvf.policies import PolicySpec, make_policy
+        from tvf.policies import make_policy
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
         ks, depths = parse_grid(self.k, "k"), parse_grid(self.depth, "depth")
         tasks = load_tasks(self.task_file).resolve(self.tasks)
-        spec = PolicySpec(self.method, _path(self.gctn), _path(self.vf), None, None, self.device,
-                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
+        spec = self.planner.spec(self.method, device=self.device)
         ablation_cells(spec, ks, depths)
         make_policy(spec)  # a bad flag or checkpoint fails before any cell runs
         check_output_dir(self.out)

@@ -9,7 +9,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from tvf.cli.common import check_output_dir
+from tvf.cli.common import PlannerFlags, check_output_dir
 from tvf.errors import TvfError
 
 
@@ -76,25 +76,14 @@ class VizPlan:
     """Output directory (plan.png, plan.json)."""
     seed: int = 1
     """Scene seed (odd seeds below 1000001 are the validation range)."""
-    gctn: Path | None = None
-    """GCTN run directory or checkpoint (default: the shipped weights)."""
-    vf: Path | None = None
-    """VF run directory or checkpoint (default: the shipped weights)."""
     method: str = "tvf-large"
     """tvf-small | tvf-large."""
     k: int | None = None
     """Place proposals per node (default: the method's)."""
     depth: int | None = None
     """Search depth (default: the method's)."""
-    proposals: str | None = None
-    """Proposal rule, kmeans (the paper's) | nms (places a block apart; docs/planner.md)."""
-    pick_branches: int | None = None
-    """Distinct picks each node branches over (default 1: the argmax pick only)."""
-    turns: int | None = None
-    """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's, 1)."""
-    turns_depth: int | None = None
-    """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
-    the plain GCTN (1 = the root's proposals only; default: every level)."""
+    planner: tyro.conf.OmitArgPrefixes[PlannerFlags] = PlannerFlags()
+    """The models and the planner's settings (default: the method's)."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --task may name."""
     device: str = "auto"
@@ -102,13 +91,12 @@ class VizPlan:
 
     def run(self) -> None:
         from tvf.io import atomic_write_bytes, atomic_write_json
-        from tvf.policies import PLANNER_METHODS, PolicySpec, make_policy
+        from tvf.policies import PLANNER_METHODS, make_policy
         from tvf.viz.plan import decision_figure, plan_record
 
         if self.method not in PLANNER_METHODS:
             raise TvfError(f"--method must be one of {', '.join(PLANNER_METHODS)}, got {self.method!r}")
-        spec = PolicySpec(self.method, _path(self.gctn), _path(self.vf), self.k, self.depth, self.device,
-                          self.proposals, self.pick_branches, self.turns, self.turns_depth)  # fmt: skip
+        spec = self.planner.spec(self.method, self.k, self.depth, self.device)
         policy = make_policy(spec)
         _, obs, goal = first_scene(self.task_file, self.task, self.seed)
         out = check_output_dir(self.out)

@@ -37,11 +37,16 @@ class PolicySpec:
     """Quarter turns of the scene the GCTN's maps are averaged over (1, 2 or 4; docs/planner.md)."""
     turns_depth: int | None = None
     """TVF: the search levels, from the root, that use the symmetrised GCTN (the rest: the plain one)."""
+    alpha: float | None = None
+    """TVF: place pixels at least ALPHA times the best are candidates."""
+    nms_radius: float | None = None
+    """TVF: pixels between NMS proposals and between branched picks."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
         fields = {"k": self.k, "depth": self.depth, "proposals": self.proposals,
-                  "pick_branches": self.pick_branches, "turns_depth": self.turns_depth}  # fmt: skip
+                  "pick_branches": self.pick_branches, "turns_depth": self.turns_depth, "alpha": self.alpha,
+                  "nms_radius": self.nms_radius}  # fmt: skip
         return {name: value for name, value in fields.items() if value is not None}
 
 
@@ -135,7 +140,7 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
     except ValueError as exc:
         raise TvfError(
             f"{exc.args[0]}; fix the planner flags "
-            "(--k, --depth, --proposals, --pick-branches, --turns-depth)"
+            "(--k, --depth, --proposals, --pick-branches, --alpha, --nms-radius, --turns-depth)"
         ) from None
 
 
