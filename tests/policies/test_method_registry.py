@@ -32,8 +32,8 @@ def test_planner_presets_and_overrides():
     assert planner_of(PolicySpec("tvf-large", k=2)).pick_branches == 2  # a smaller K shares fewer picks
     paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1, turns=1))
     assert replace(paper, turns_depth=None) == PlannerConfig(k=3, depth=3)  # the paper's TVF-L (turns 1)
-    assert large.turns_depth == 1 and small.turns_depth is None
-    assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 1, 4]
+    assert large.turns_depth == 1 and small.turns_depth == 1
+    assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 4, 4]
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
         planner_of(PolicySpec("tvf-huge"))
     with pytest.raises(TvfError, match="does not plan"):

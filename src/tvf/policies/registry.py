@@ -95,10 +95,12 @@ METHODS: dict[str, Method] = {
     m.name: m
     for m in (
         Method("oracle", "oracle", _oracle, needs_env=True),
-        # GCTN and TVF-L average the GCTN over the 4 quarter turns of the scene (TVF-L: for the root's
-        # proposals only), chosen on validation seeds (docs/results.md); the paper's GCTN is --turns 1
+        # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
+        # proposals only), chosen on validation seeds (docs/results.md); the paper's is --turns 1
         Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4),
-        Method("tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1)),
+        Method(
+            "tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1, turns_depth=1), turns=4
+        ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
         # the paper's rule is --proposals kmeans --pick-branches 1 --turns 1
         Method(
