@@ -51,7 +51,8 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    keep = {k: v for k, v in asdict(cfg).items() if k not in ("workers", "stages", "ship", "device", "wandb")}
+    unrecorded = ("workers", "envs_per_worker", "stages", "ship", "device", "wandb")
+    keep = {k: v for k, v in asdict(cfg).items() if k not in unrecorded}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
     # a folder made before a flag existed lacks it: it resumes when the flag keeps its (resolved) default
@@ -122,7 +123,7 @@ def stage_eval(cfg: ExperimentConfig) -> None:
         _say(f"evaluating {method}: {len(tasks)} tasks x {cfg.episodes} episodes")
         spec = method_spec(cfg, method)
         evaluate(spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, cfg.out / "eval" / method,
-                 cfg.step_slack)  # fmt: skip
+                 cfg.step_slack, envs_per_worker=cfg.envs_per_worker)  # fmt: skip
 
 
 def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):
