@@ -18,3 +18,13 @@ def pick_device(name: str = "auto") -> torch.device:
     if name not in DEVICES:
         raise TvfError(f"unknown device {name!r}; choose auto, cpu or cuda")
     return torch.device(name)
+
+
+def mixes_environments(device: torch.device) -> bool:
+    """Whether the rows of several environments may share one model call on ``device``.
+
+    Not on the CPU: its convolutions round differently with the batch, so keeping each environment's
+    rows in calls of their own makes N environments per process decide bit-for-bit as one at a time
+    (and batching buys little there). Elsewhere (a GPU, where large batches are the point) they do.
+    """
+    return device.type != "cpu"

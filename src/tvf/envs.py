@@ -49,7 +49,11 @@ class Env(Protocol):
 
 
 class EnvFactory(Protocol):
-    """Makes (or reuses) this process's environment for a task; must pickle, to reach worker processes."""
+    """Makes (or reuses) this process's environment for a task; must pickle, to reach worker processes.
+
+    A factory that also takes ``slot: int = 0`` (a separate world per slot, as
+    :class:`tvf.sim.factory.SimEnvFactory`) serves `tvf eval --envs-per-worker N`, which steps several
+    worlds of one task side by side."""
 
     def __call__(self, task: Task) -> Env: ...
 

@@ -40,6 +40,9 @@ class EvalCmd:
     """Episode i uses seed SEED_START + 2i: 1000001 = the test range, 1 = the validation range."""
     workers: int = 1
     """Parallel processes (one simulator and one model copy each)."""
+    envs_per_worker: int = 1
+    """Simulators each process steps in lock-step, their decisions batched into shared model calls (pays on
+    a GPU; the episodes are those of one at a time; docs/planner.md)."""
     step_slack: int = 0
     """Extra steps beyond one per block (0 = the paper's protocol)."""
     task_file: Path | None = None
@@ -58,13 +61,14 @@ class EvalCmd:
 
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
-        from tvf.evaluate.runner import env_factory
+        from tvf.evaluate.runner import check_envs_per_worker, env_factory
         from tvf.policies import get_method, make_policy
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
         tasks = load_tasks(self.task_file).resolve(self.tasks)
         envs = env_factory(self.env)
+        check_envs_per_worker(self.envs_per_worker, envs)
         spec = self.spec()
         if not get_method(spec.method).needs_env:
             make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
@@ -79,6 +83,7 @@ class EvalCmd:
             self.step_slack,
             envs,
             self.restart,
+            self.envs_per_worker,
         )
         print(summary_markdown(summary))
 

@@ -76,6 +76,9 @@ class ExperimentConfig:
     preset's; docs/models.md)."""
     workers: int = 2
     """Parallel processes for data generation and evaluation."""
+    envs_per_worker: int = 1
+    """Closed-loop evaluation: simulators each process steps together, their decisions batched (pays on a
+    GPU; the results are those of one at a time; docs/planner.md)."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks and --train-tasks may name."""
     device: str = "auto"

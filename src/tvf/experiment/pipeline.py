@@ -51,7 +51,7 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    unrecorded = ("workers", "stages", "ship", "device", "wandb", "restart")
+    unrecorded = ("workers", "envs_per_worker", "stages", "ship", "device", "wandb", "restart")
     keep = {k: v for k, v in asdict(cfg).items() if k not in unrecorded}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
@@ -126,12 +126,12 @@ def stage_eval(cfg: ExperimentConfig) -> None:
         spec, out = method_spec(cfg, method), cfg.out / "eval" / method
         run = (spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, out, cfg.step_slack)
         try:
-            evaluate(*run)
+            evaluate(*run, envs_per_worker=cfg.envs_per_worker)
         except StaleError:  # weights retrained (the data changed) or settings changed under it
             if not cfg.restart:
                 raise
             _say(f"{out}: its weights or settings changed; evaluating {method} again (--restart)")
-            evaluate(*run, restart=True)
+            evaluate(*run, restart=True, envs_per_worker=cfg.envs_per_worker)
 
 
 def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):

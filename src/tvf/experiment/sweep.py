@@ -36,7 +36,7 @@ from tvf.io import atomic_write_json, check_output_dir, read_json
 SWEEP_RECORD = "sweep.json"
 PER_CELL = ("out", "demos", "seed")
 """Settings that differ between the cells of a sweep."""
-NOT_RECORDED = ("workers", "stages", "ship", "device", "wandb")
+NOT_RECORDED = ("workers", "envs_per_worker", "stages", "ship", "device", "wandb")
 """Flags that may change between runs of the same sweep (as for one experiment)."""
 CELL_DIR = re.compile(r"demos-(\d+)/seed-(\d+)")
 

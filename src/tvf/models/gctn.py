@@ -189,6 +189,15 @@ INFERENCE_CHUNK = 2
 """Largest batch run at once without gradients. Per-state cost on the 2-core CPU rises with the batch
 (the FFT correlation is memory-bound). With one thread per process and another process beside it
 (the evaluation set-up), lite place_map took 122 / 81 / 108 / 186 ms per state at chunks 1 / 2 / 3 / 8."""
+ACCELERATOR_CHUNK = 32
+"""Largest batch run at once without gradients on a GPU, where large batches are the point (a level of
+several environments' trees, `tvf eval --envs-per-worker`); not tuned yet: no GPU was lent so far."""
+
+
+def inference_chunk(device: torch.device) -> int:
+    """The no-gradient chunk on ``device``: :data:`INFERENCE_CHUNK` on the CPU, else
+    :data:`ACCELERATOR_CHUNK`."""
+    return INFERENCE_CHUNK if device.type == "cpu" else ACCELERATOR_CHUNK
 
 
 def _require(goal: torch.Tensor | None) -> torch.Tensor:
@@ -357,15 +366,12 @@ class GCTN(nn.Module):
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Pick logits (B, H, W); without gradients, large batches run in chunks."""
-        b = current.shape[0]
-        if torch.is_grad_enabled() or b <= INFERENCE_CHUNK:
+        b, chunk = current.shape[0], inference_chunk(current.device)
+        if torch.is_grad_enabled() or b <= chunk:
             return self.attention(current, goal)
         goal = _match_batch(goal, b)
         return torch.cat(
-            [
-                self.attention(current[lo : lo + INFERENCE_CHUNK], goal[lo : lo + INFERENCE_CHUNK])
-                for lo in range(0, b, INFERENCE_CHUNK)
-            ]
+            [self.attention(current[lo : lo + chunk], goal[lo : lo + chunk]) for lo in range(0, b, chunk)]
         )
 
     def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
@@ -386,7 +392,7 @@ class GCTN(nn.Module):
     ) -> torch.Tensor:
         """Place logits (B, R, H, W) for the given picks; a batch-1 goal is shared by all states.
 
-        Without gradients, batches larger than :data:`INFERENCE_CHUNK` run in chunks (faster on CPU).
+        Without gradients, batches larger than :func:`inference_chunk` run in chunks (faster on CPU).
         """
         b = current.shape[0]
         pick = as_pixels(pick_pixels, b, current.shape[-2:]).to(current.device)
@@ -402,7 +408,7 @@ class GCTN(nn.Module):
         """Place logits (B, P, R, H, W) at P picks per state (``picks`` (B, P, 2) int pixels).
 
         Each state's key and query maps are computed once for all its picks. Chunked like
-        :meth:`place_map` (chunks of :data:`INFERENCE_CHUNK` states).
+        :meth:`place_map` (chunks of :func:`inference_chunk` states).
         """
         b = current.shape[0]
         picks = torch.as_tensor(picks)
@@ -411,13 +417,14 @@ class GCTN(nn.Module):
         p = picks.shape[1]
         picks = as_pixels(picks.reshape(b * p, -1), b * p, current.shape[-2:]).reshape(b, p, 2)
         picks = picks.to(current.device)
-        if torch.is_grad_enabled() or b <= INFERENCE_CHUNK:
+        chunk = inference_chunk(current.device)
+        if torch.is_grad_enabled() or b <= chunk:
             return self.transport.place_maps(current, goal, picks, goal_features)
         if goal_features is None and _require(goal).shape[0] == 1:
             goal_features = self.transport.goal_features(goal)  # one shared goal: encode it once
         out = []
-        for lo in range(0, b, INFERENCE_CHUNK):
-            hi = lo + INFERENCE_CHUNK
+        for lo in range(0, b, chunk):
+            hi = lo + chunk
             if goal_features is None:
                 out.append(self.transport.place_maps(current[lo:hi], goal[lo:hi], picks[lo:hi]))
             else:

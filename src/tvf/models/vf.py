@@ -45,6 +45,9 @@ HEIGHT_WEIGHT = 5.0
 INFERENCE_CHUNK = 4
 """Largest batch predicted at once. With one thread per process and another process beside it (the
 evaluation set-up), lite took 18 / 13 / 20 / 16 / 28 ms per image at chunks 1 / 4 / 8 / 16 / 27."""
+ACCELERATOR_CHUNK = 64
+"""Largest batch predicted at once on a GPU (several environments' tree levels, `tvf eval
+--envs-per-worker`); not tuned yet: no GPU was lent so far."""
 
 
 def square_masks(centres: torch.Tensor, window: int, height: int, width: int) -> torch.Tensor:
@@ -142,12 +145,17 @@ class ImagePredictor:
     def _predict_chunked(
         self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
     ) -> torch.Tensor:
-        """Unclamped prediction in chunks of :attr:`inference_chunk` (faster than one big batch on CPU)."""
+        """Unclamped prediction in chunks of :attr:`inference_chunk` (faster than one big batch on CPU;
+        :data:`ACCELERATOR_CHUNK` on a GPU)."""
         b = rgbh.shape[0]
         pick = as_pixels(pick_pixels, b)
         place = as_pixels(place_pixels, b)
         yaws = torch.as_tensor(yaws, dtype=torch.float32).reshape(-1).expand(b)
-        step = self.inference_chunk
+        step = (
+            self.inference_chunk
+            if rgbh.device.type == "cpu"
+            else max(self.inference_chunk, ACCELERATOR_CHUNK)
+        )
         return torch.cat(
             [
                 self(rgbh[i : i + step], pick[i : i + step], place[i : i + step], yaws[i : i + step])

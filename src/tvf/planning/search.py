@@ -2,8 +2,9 @@
 
 At every level all frontier states go through **one** batched GCTN call (pick logits, then the place
 maps at each state's picks: its argmax, plus the next distinct picks with ``pick_branches`` > 1) and
-all their children through **one** batched VF call. A node at depth ``d``
-(1-based) scores ``gamma**(d-1) * (C - D(o, o_goal))`` with
+all their children through **one** batched VF call; :meth:`TreeSearch.search_many` plans from N roots
+(N environments, each with its own goal) at once, level by level over all their trees. A node at depth
+``d`` (1-based) scores ``gamma**(d-1) * (C - D(o, o_goal))`` with
 
     D(o, o_goal) = sum over pixels |H_n(o) - H_n(o_goal)| / (160 * 160 * 4),
 
@@ -22,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from tvf.device import mixes_environments
 from tvf.models.gctn import argmax_pixels
 from tvf.models.images import RGBH_CHANNELS
 from tvf.models.symmetry import SymmetrizedGCTN
@@ -137,17 +139,58 @@ def height_distance(images: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
     return diff.sum(dim=(-2, -1)) / (h * w * RGBH_CHANNELS)
 
 
-def _chunks(n: int, batched: bool) -> list[slice]:
-    size = n if batched else 1
-    return [slice(i, i + size) for i in range(0, n, size)]
+def _goal_rows(features: torch.Tensor, rows: slice | torch.Tensor) -> torch.Tensor:
+    """The goal features of some roots: batch dim 0 of a plain GCTN's (B, C, P, P), dim 1 of a
+    symmetrised one's stack (turns, B, C, P, P)."""
+    return features[:, rows] if features.dim() == 5 else features[rows]
+
+
+@dataclass
+class _Level:
+    """One level's frontier over all the roots of a search: the states (rows grouped by root, in root
+    order), each row's root and node index in its root's plan (-1: the real state)."""
+
+    states: torch.Tensor
+    roots: np.ndarray
+    ids: list[int]
 
 
 class TreeSearch:
-    """The TVF planner over a GCTN (proposals) and a VF model (imagination)."""
+    """The TVF planner over a GCTN (proposals) and a VF model (imagination).
 
-    def __init__(self, gctn, vf, config: PlannerConfig) -> None:
+    :meth:`search_many` plans from N roots at once (N environments, each with its own goal): every
+    level of all N trees goes through the models together. With ``mix_roots`` False (the default on the
+    CPU) each model call holds the rows of one root only, exactly the calls of a single search, so every
+    plan is bit-identical to :meth:`search` of its root alone (CPU convolutions round differently with
+    the batch). With ``mix_roots`` True (the default on other devices) a level is one call over all
+    roots, which a GPU runs as one large batch; plans then agree up to float rounding.
+    """
+
+    def __init__(self, gctn, vf, config: PlannerConfig, mix_roots: bool | None = None) -> None:
         self.gctn, self.vf, self.config = gctn, vf, config
         self.n_rotations = gctn.preset.n_rotations
+        self.mix_roots = mix_roots
+
+    def _mixes(self, device: torch.device) -> bool:
+        return self.mix_roots if self.mix_roots is not None else mixes_environments(device)
+
+    def _parts(self, roots: np.ndarray, mix: bool) -> list[slice]:
+        """Row ranges of one model call each: one node at a time (``batched`` False), all rows (``mix``)
+        or one range per root (rows are grouped by root)."""
+        n = len(roots)
+        if not self.config.batched:
+            return [slice(i, i + 1) for i in range(n)]
+        if mix:
+            return [slice(0, n)]
+        starts = [0, *np.flatnonzero(np.diff(roots) != 0) + 1, n]
+        return [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)]
+
+    @staticmethod
+    def _root_rows(roots: np.ndarray, part: slice) -> slice | torch.Tensor:
+        """Index of the goal rows of ``part``: one root's batch-1 slice (shared, as a single search's
+        goal), else one row per state."""
+        first, last = int(roots[part.start]), int(roots[part.stop - 1])
+        return slice(first, first + 1) if first == last else torch.as_tensor(roots[part])
 
     def _gctn_at(self, level: int, goal_features: torch.Tensor):
         """The GCTN that proposes at ``level`` and its goal features: the plain one below ``turns_depth``."""
@@ -164,17 +207,21 @@ class TreeSearch:
         return [pick_peaks(x, cfg.pick_branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
 
     @torch.no_grad()
-    def _propose(self, states: torch.Tensor, goal: torch.Tensor, goal_features: torch.Tensor, level: int):
+    def _propose(self, frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor, level: int,
+                 mix: bool):  # fmt: skip
         """GCTN on every state: its picks (list of (n_i, 2)), its place logits at them (list of
         (n_i, R, H, W)) and the pick logits (N, H, W)."""
         gctn, goal_features = self._gctn_at(level, goal_features)
+        states, roots = frontier.states, frontier.roots
         picks, places, pick_logits = [], [], []
-        for part in _chunks(states.shape[0], self.config.batched):
-            logits = gctn.pick_logits(states[part], goal)
+        for part in self._parts(roots, mix):
+            rows = self._root_rows(roots, part)
+            logits = gctn.pick_logits(states[part], goals[rows])
             sets = self._picks(logits)
             width = max(len(s) for s in sets)  # states with fewer picks repeat their best one
             padded = np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
-            maps = gctn.place_maps(states[part], None, torch.as_tensor(padded), goal_features)
+            features = _goal_rows(goal_features, rows)
+            maps = gctn.place_maps(states[part], None, torch.as_tensor(padded), features)
             places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]
             picks += sets
             pick_logits.append(logits)
@@ -189,47 +236,89 @@ class TreeSearch:
         )  # fmt: skip
 
     @torch.no_grad()
-    def _imagine(self, states: torch.Tensor, picks, places, yaws) -> torch.Tensor:
-        parts = _chunks(states.shape[0], self.config.batched)
-        return torch.cat([self.vf.predict_rgbh(states[p], picks[p], places[p], yaws[p]) for p in parts])
+    def _imagine(self, states: torch.Tensor, roots: np.ndarray, goals: torch.Tensor, picks, places, yaws,
+                 mix: bool) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """The VF's children of ``states`` and their distances D to their roots' goals."""
+        children, distances = [], []
+        for p in self._parts(roots, mix):
+            images = self.vf.predict_rgbh(states[p], picks[p], places[p], yaws[p])
+            children.append(images)
+            distances.append(height_distance(images, goals[self._root_rows(roots, p)]))
+        return torch.cat(children), torch.cat(distances)
 
     @torch.no_grad()
     def search(self, current: torch.Tensor, goal: torch.Tensor, keep_images: bool = False) -> Plan:
         """Plan from the real state ``current`` towards ``goal`` (normalised RGB-H, (1, 4, H, W) each)."""
+        return self.search_many(current, goal, keep_images)[0]
+
+    @torch.no_grad()
+    def search_many(
+        self, currents: torch.Tensor, goals: torch.Tensor, keep_images: bool = False
+    ) -> list[Plan]:
+        """One plan per root: from ``currents[i]`` towards ``goals[i]`` (normalised RGB-H, (N, 4, H, W))."""
         cfg = self.config
-        if not (torch.isfinite(current).all() and torch.isfinite(goal).all()):
+        if not (torch.isfinite(currents).all() and torch.isfinite(goals).all()):
             raise ValueError("planner input contains NaN or infinity")
-        goal_features = self.gctn.goal_features(goal)
-        states, ids = current, [-1]  # frontier images and their node indices (-1: the real state)
-        nodes: list[Node] = []
-        images: list[torch.Tensor] = []
-        plan = Plan(nodes, -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0))
+        if currents.shape[0] != goals.shape[0]:
+            raise ValueError(
+                f"{currents.shape[0]} states but {goals.shape[0]} goals: pass one goal per state"
+            )
+        n = currents.shape[0]
+        mix = self._mixes(currents.device)
+        goal_features = self._goal_features(goals, mix)
+        frontier = _Level(currents, np.arange(n), [-1] * n)
+        plans = [
+            Plan([], -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0)) for _ in range(n)
+        ]
+        images: list[list[torch.Tensor]] = [[] for _ in range(n)]
         for level in range(1, cfg.depth + 1):
-            picks, place_logits, pick_logits = self._propose(states, goal, goal_features, level)
-            proposals = [self._proposals(p, m) for p, m in zip(picks, place_logits, strict=True)]
-            if level == 1:
-                plan.pick_logits, plan.place_logits = pick_logits[0], place_logits[0][0]
-                plan.root_proposals = proposals[0]
-            parent_rows = [i for i, p in enumerate(proposals) for _ in range(len(p))]
-            child_picks = torch.as_tensor(np.concatenate([p.picks for p in proposals]))
-            child_places = torch.as_tensor(np.concatenate([p.places for p in proposals]))
-            channels = torch.as_tensor(np.concatenate([p.rotations for p in proposals]))
-            rotations = self.gctn.rotation_bins(channels).cpu().numpy()  # bins of a full turn
-            yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
-            children = self._imagine(states[parent_rows], child_picks, child_places, yaws)
-            distances = height_distance(children, goal)
-            scores = cfg.gamma ** (level - 1) * (cfg.bonus - distances)
-            first = len(nodes)
-            for j, row in enumerate(parent_rows):
-                nodes.append(Node(first + j, ids[row], level, child_picks[j].numpy(), child_places[j].numpy(),
-                                  int(rotations[j]), float(distances[j]), float(scores[j])))  # fmt: skip
-            self._count(plan, states.shape[0], children.shape[0])
+            frontier = self._expand(plans, frontier, goals, goal_features, level, mix)
             if keep_images:
-                images.append(children)
-            states, ids = children, list(range(first, first + len(parent_rows)))
-        plan.best = int(np.argmax([n.score for n in nodes]))  # first maximum: the shallowest
-        plan.images = torch.cat(images) if keep_images else None
-        return plan
+                for r in range(n):
+                    images[r].append(frontier.states[torch.as_tensor(frontier.roots == r)])
+        for plan, kept in zip(plans, images, strict=True):
+            plan.best = int(np.argmax([node.score for node in plan.nodes]))  # first maximum: the shallowest
+            plan.images = torch.cat(kept) if keep_images else None
+        return plans
+
+    def _expand(self, plans: list[Plan], frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor,
+                level: int, mix: bool) -> _Level:  # fmt: skip
+        """Propose, imagine and score the children of every frontier state; add them to their roots' plans
+        and return them, the next frontier."""
+        cfg = self.config
+        picks, place_logits, pick_logits = self._propose(frontier, goals, goal_features, level, mix)
+        proposals = [self._proposals(p, m) for p, m in zip(picks, place_logits, strict=True)]
+        if level == 1:  # one row per root
+            for plan, logits, maps, props in zip(plans, pick_logits, place_logits, proposals, strict=True):
+                plan.pick_logits, plan.place_logits, plan.root_proposals = logits, maps[0], props
+        parent_rows = [i for i, p in enumerate(proposals) for _ in range(len(p))]
+        child_roots = frontier.roots[parent_rows]
+        child_picks = torch.as_tensor(np.concatenate([p.picks for p in proposals]))
+        child_places = torch.as_tensor(np.concatenate([p.places for p in proposals]))
+        channels = torch.as_tensor(np.concatenate([p.rotations for p in proposals]))
+        rotations = self.gctn.rotation_bins(channels).cpu().numpy()  # bins of a full turn
+        yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
+        children, distances = self._imagine(
+            frontier.states[parent_rows], child_roots, goals, child_picks, child_places, yaws, mix
+        )
+        scores = cfg.gamma ** (level - 1) * (cfg.bonus - distances)
+        ids = []
+        for j, (row, root) in enumerate(zip(parent_rows, child_roots, strict=True)):
+            nodes = plans[root].nodes
+            ids.append(len(nodes))
+            nodes.append(Node(len(nodes), frontier.ids[row], level, child_picks[j].numpy(),
+                              child_places[j].numpy(), int(rotations[j]), float(distances[j]),
+                              float(scores[j])))  # fmt: skip
+        for r, plan in enumerate(plans):
+            self._count(plan, int((frontier.roots == r).sum()), int((child_roots == r).sum()))
+        return _Level(children, child_roots, ids)
+
+    def _goal_features(self, goals: torch.Tensor, mix: bool) -> torch.Tensor:
+        """The GCTN's goal features of every root: one call for all (``mix``), else one per root."""
+        if mix or goals.shape[0] == 1:
+            return self.gctn.goal_features(goals)
+        per_root = [self.gctn.goal_features(goals[i : i + 1]) for i in range(goals.shape[0])]
+        return torch.cat(per_root, dim=1 if per_root[0].dim() == 5 else 0)
 
     def _count(self, plan: Plan, gctn_states: int, vf_states: int) -> None:
         """Model calls of one level: one per level when batched, one per state otherwise."""

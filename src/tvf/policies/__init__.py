@@ -1,6 +1,6 @@
 """Policies: the contract (:class:`Policy`), the built-in methods and the method registry."""
 
-from tvf.policies.base import Observation, Policy
+from tvf.policies.base import BatchPolicy, Observation, Policy, act_all
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 from tvf.policies.registry import (
     METHODS,
@@ -16,7 +16,7 @@ from tvf.policies.registry import (
 )
 
 __all__ = [
-    "METHODS", "PLANNER_METHODS", "GctnPolicy", "Method", "Observation", "OraclePolicy", "Policy",
-    "PolicySpec", "TvfPolicy", "forget_cached_policies", "get_method", "label", "make_policy",
-    "planner_of", "policy_for",
+    "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
+    "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "label",
+    "make_policy", "planner_of", "policy_for",
 ]  # fmt: skip

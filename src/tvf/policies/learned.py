@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import torch
 
+from tvf.device import mixes_environments
 from tvf.models.images import to_rgbh
 from tvf.planning.actions import bin_action
 from tvf.planning.search import Plan, PlannerConfig, TreeSearch
@@ -14,6 +17,11 @@ from tvf.policies.base import Observation
 def observation_tensor(images: Observation, device: torch.device) -> torch.Tensor:
     """An observation dict -> normalised RGB-H (1, 4, H, W) on ``device``."""
     return to_rgbh(images["color"], images["height"]).to(device)
+
+
+def observations_tensor(images: Sequence[Observation], device: torch.device) -> torch.Tensor:
+    """Observation dicts -> normalised RGB-H (N, 4, H, W) on ``device``."""
+    return torch.cat([observation_tensor(x, device) for x in images])
 
 
 class OraclePolicy:
@@ -39,15 +47,37 @@ class GctnPolicy:
     def __init__(self, model, device: torch.device | str = "cpu") -> None:
         self.device = torch.device(device)
         self.model = model.eval().to(self.device)
+        self.mix: bool | None = None
+        """Batch several environments in one GCTN pass (None: where the device does, a GPU)."""
 
     def reset(self) -> None:
         pass
 
     def act(self, obs: Observation, goal: Observation) -> np.ndarray:
-        current, target = observation_tensor(obs, self.device), observation_tensor(goal, self.device)
-        pick, place, rot, _ = self.model.act(current, target)
-        r = self.model.preset.n_rotations
-        return bin_action(pick[0].cpu().numpy(), place[0].cpu().numpy(), int(rot[0]), r, obs["height"])
+        return self._act(observation_tensor(obs, self.device), observation_tensor(goal, self.device), [obs])[
+            0
+        ]
+
+    def act_batch(
+        self, observations: Sequence[Observation], goals: Sequence[Observation]
+    ) -> list[np.ndarray]:
+        """The greedy action of every pair: one GCTN pass over all of them where the device batches across
+        environments (a GPU), else one per pair, bit-identical to :meth:`act` (the CPU,
+        :func:`tvf.device.mixes_environments`)."""
+        if not (self.mix if self.mix is not None else mixes_environments(self.device)):
+            return [self.act(obs, goal) for obs, goal in zip(observations, goals, strict=True)]
+        current, target = (
+            observations_tensor(observations, self.device),
+            observations_tensor(goals, self.device),
+        )
+        return self._act(current, target, observations)
+
+    def _act(self, current: torch.Tensor, goal: torch.Tensor, observations: Sequence[Observation]) -> list:
+        pick, place, rot, _ = self.model.act(current, goal)
+        pick, place, r = pick.cpu().numpy(), place.cpu().numpy(), self.model.preset.n_rotations
+        return [
+            bin_action(pick[i], place[i], int(rot[i]), r, obs["height"]) for i, obs in enumerate(observations)
+        ]
 
 
 class TvfPolicy:
@@ -68,8 +98,21 @@ class TvfPolicy:
         self.last_plan = None
 
     def act(self, obs: Observation, goal: Observation) -> np.ndarray:
-        current, target = observation_tensor(obs, self.device), observation_tensor(goal, self.device)
-        plan = self.search.search(current, target, self.keep_images)
-        self.last_plan = plan
-        node = plan.first
-        return bin_action(node.pick, node.place, node.rotation, self.search.n_rotations, obs["height"])
+        return self.act_batch([obs], [goal])[0]
+
+    def act_batch(
+        self, observations: Sequence[Observation], goals: Sequence[Observation]
+    ) -> list[np.ndarray]:
+        """The first action of each pair's plan, from one search over all the roots
+        (:meth:`~tvf.planning.search.TreeSearch.search_many`); ``last_plan`` is the last pair's plan."""
+        current, target = (
+            observations_tensor(observations, self.device),
+            observations_tensor(goals, self.device),
+        )
+        plans = self.search.search_many(current, target, self.keep_images)
+        self.last_plan = plans[-1]
+        n = self.search.n_rotations
+        return [
+            bin_action(p.first.pick, p.first.place, p.first.rotation, n, obs["height"])
+            for p, obs in zip(plans, observations, strict=True)
+        ]
