@@ -15,7 +15,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("data", "planning"),
     ("policies",),
     ("train", "evaluate", "api"),
-    ("viz",),
+    ("viz", "robot"),
     ("experiment",),
     ("cli",),
     ("__main__",),

@@ -113,7 +113,7 @@ def test_changed_data_is_named_and_restart_retrains_and_reevaluates(experiment, 
     shutil.copytree(cfg.out, copy.out)
     episode = next((copy.data_root / "train" / "stack-tower").glob("*.h5"))
     changed = read_episode(episode)
-    changed.height[0] += 0.001  # one frame re-rendered a millimetre higher
+    changed.height[:] += 0.001  # re-rendered a millimetre higher (every frame: every batch sees it)
     episode.unlink()
     write_episode(episode, changed)
     with pytest.raises(StaleError, match=f"train:stack-tower/{changed.seed}"):

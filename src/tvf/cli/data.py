@@ -37,11 +37,17 @@ class DemosCmd:
     """Give up on a task after this many times EPISODES seeds (at least EPISODES + 5)."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks may name."""
+    sensor: str = "ideal"
+    """Record the images through these cameras (tvf.sim.sensors; docs/real-robot.md), e.g. d415-one:
+    training data for a planner that must work under noise. One sensor per split folder."""
 
     def run(self) -> None:
         from tvf.data.format import SPLITS
         from tvf.data.generation import GenerationPlan, generate
+        from tvf.sim.sensors import get_sensor
         from tvf.tasks import load_tasks
+
+        get_sensor(self.sensor)
 
         table = load_tasks(self.task_file)
         if self.split not in SPLITS:
@@ -49,7 +55,8 @@ class DemosCmd:
         at_least_one(episodes=self.episodes, workers=self.workers, max_tries=self.max_tries)
         tasks = tuple(t.name for t in table.resolve(self.tasks))
         check_output_dir(self.out / self.split)
-        plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries)
+        plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries,
+                              self.sensor)  # fmt: skip
         report = generate(plan, self.workers, progress=True, tasks=table)
         print(
             f"{plan.folder}: {report.generated} episodes written, {report.skipped} already there, "

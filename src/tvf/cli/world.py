@@ -100,16 +100,17 @@ class OracleCmd:
                                           "success": mean})  # fmt: skip
 
 
-def render_scene(task, seed: int, out: Path, export_views: Path | None = None) -> dict:
+def render_scene(task, seed: int, out: Path, export_views: Path | None = None, sensor: str = "ideal") -> dict:
     """Write the initial and goal images (PNG + NPZ) and a perspective view of a task's scene; with
-    ``export_views`` also the cameras' raw views of both, as a real rig records them (tvf.views)."""
+    ``export_views`` also the cameras' views of both, as a real rig records them (tvf.views), and all of it
+    through ``sensor`` (tvf.sim.sensors: noise, dropout, one camera, calibration errors)."""
     from tvf.io import atomic_write_bytes
     from tvf.sim.env import TvfEnv
     from tvf.sim.views import perspective_view
     from tvf.views import rgbh_bytes, write_views
     from tvf.viz.images import observation_panel, save_png
 
-    env = TvfEnv(task)
+    env = TvfEnv(task, sensor=sensor)
     try:
         obs, info = env.reset(seed=seed)
         for name, image in (("initial", obs), ("goal", info["goal"])):
@@ -117,9 +118,9 @@ def render_scene(task, seed: int, out: Path, export_views: Path | None = None) -
             atomic_write_bytes(out / f"{name}.npz", rgbh_bytes(image["color"], image["height"]))
         save_png(out / "perspective.png", perspective_view(env.world))
         if export_views is not None:
-            write_views(export_views / "scene", *env.world.views(), env.world.workspace)
+            write_views(export_views / "scene", *env.sensed_views(), env.world.workspace)
             write_views(export_views / "goal", *env.goal_views, env.world.workspace)
-        return {"task": env.task.name, "seed": seed, "blocks": env.task.n_blocks}
+        return {"task": env.task.name, "seed": seed, "blocks": env.task.n_blocks, "coverage": env.coverage}
     finally:
         env.close()
 
@@ -141,15 +142,22 @@ class RenderCmd:
     camera files + colour PNG + 16-bit depth PNG (mm), the input of `tvf plan`."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --task may name."""
+    sensor: str = "ideal"
+    """The cameras (tvf.sim.sensors; docs/real-robot.md): ideal | one | d415 | d415-one | d415-one-calib |
+    d435-one. The images (and the exported views) are what that rig records."""
 
     def run(self) -> None:
+        from tvf.sim.sensors import get_sensor
         from tvf.tasks import load_tasks
 
+        get_sensor(self.sensor)
         task = load_tasks(self.task_file).get(self.task)
         out = check_output_dir(self.out)
         export = None if self.export_views is None else check_output_dir(self.export_views, "--export-views")
-        info = render_scene(task, self.seed, out, export)
+        info = render_scene(task, self.seed, out, export, self.sensor)
         what = "initial/goal .png/.npz and perspective.png"
-        print(f"wrote {what} for {info['task']} seed {self.seed} to {self.out}")
+        cover = ", ".join(f"{k} {v:.1%}" for k, v in info["coverage"].items())
+        print(f"wrote {what} for {info['task']} seed {self.seed} to {self.out} (sensor {self.sensor}; "
+              f"pixels measured: {cover})")  # fmt: skip
         if export is not None:
             print(f"wrote the camera views of the scene and the goal to {export}/scene and {export}/goal")

@@ -16,6 +16,7 @@ and removes temporary files that an interrupted run left behind. A full disk sto
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
@@ -23,24 +24,37 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from tvf.data.dataset import FAILURES, scan, write_manifest
+from tvf.data.dataset import FAILURES, episode_files, scan, write_manifest
 from tvf.data.format import SPLITS, DataError, Episode, episode_name, read_info, write_h5
 from tvf.errors import DiskFullError, TvfError
-from tvf.io import TMP_SUFFIX, append_jsonl, as_disk_full, commit, raise_if_disk_full, read_jsonl, temp_path
+from tvf.io import (
+    TMP_SUFFIX,
+    append_jsonl,
+    as_disk_full,
+    atomic_write_json,
+    commit,
+    raise_if_disk_full,
+    read_jsonl,
+    temp_path,
+)
 from tvf.parallel import make_pool
 from tvf.sim.env import EnvConfig, TvfEnv
 from tvf.sim.oracle import random_schedule
+from tvf.sim.sensors import get_sensor
 from tvf.tasks import BUILTIN, Task, TaskTable
 
 N_RANDOM = 2
 """Random actions per train-split episode (facts §4)."""
 LOCK = ".tvf-demos.lock"
+SENSOR_FILE = "sensor.json"
+"""Names the sensor of a split folder recorded through one other than ``ideal`` (tvf.sim.sensors)."""
 
 
 # ------------------------------------------------------------------------------------ one episode
@@ -61,19 +75,21 @@ def action_schedule(task, split: str, seed: int) -> list[bool]:
     return random_schedule(task.n_blocks + N_RANDOM, N_RANDOM, rng)
 
 
-def _new_env(task: Task | str, split: str):
+def _new_env(task: Task | str, split: str, sensor: str = "ideal"):
     """A fresh environment (its own PyBullet client) for one episode; train allows the two extra steps.
 
     Fresh, not cached, so an episode cannot depend on what its worker ran before. (A simulator that
     only removed the last scene's bodies left 0.1 mm traces; ``World.clear`` now resets the simulation
     fully and a reused environment is bit-identical too, but a fresh one costs only about 0.1 s.)
     """
-    return TvfEnv(task, EnvConfig(step_slack=N_RANDOM if split == "train" else 0))
+    return TvfEnv(task, EnvConfig(step_slack=N_RANDOM if split == "train" else 0), sensor=sensor)
 
 
 def _config_attrs(env) -> dict[str, Any]:
     obs = env.config.sim.observation
+    sensor = {} if env.sensor.ideal and env.sensor.cameras == "three" else {"sensor": asdict(env.sensor)}
     return {
+        **sensor,
         "observation": {**asdict(obs), "cameras": [asdict(c) for c in obs.cameras()]},
         "sim": {
             "hz": env.config.sim.hz,
@@ -102,9 +118,12 @@ def _state(env) -> tuple[np.ndarray, float]:
     return np.concatenate([pos, yaw[:, None]], axis=1).astype(np.float32), float(env.progress().fraction)
 
 
-def collect_episode(task: Task | str, split: str, seed: int) -> tuple[Episode | None, Outcome]:
-    """Run one episode in this process; returns (episode, outcome) with episode None on failure."""
-    env = _new_env(task, split)
+def collect_episode(
+    task: Task | str, split: str, seed: int, sensor: str = "ideal"
+) -> tuple[Episode | None, Outcome]:  # fmt: skip
+    """Run one episode in this process, its images seen through ``sensor`` (tvf.sim.sensors; the oracle
+    acts on true poses); returns (episode, outcome) with episode None on failure."""
+    env = _new_env(task, split, sensor)
     try:
         return _run_episode(env, split, seed)
     finally:
@@ -168,10 +187,10 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
     return episode, out
 
 
-def episode_job(task: Task, split: str, seed: int, folder: str) -> Outcome:
+def episode_job(task: Task, split: str, seed: int, folder: str, sensor: str = "ideal") -> Outcome:
     """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
     parent renames into place once every smaller seed of the task is settled."""
-    episode, out = collect_episode(task, split, seed)
+    episode, out = collect_episode(task, split, seed, sensor)
     if episode is not None:
         final = Path(folder) / task.name / episode_name(seed)
         final.parent.mkdir(parents=True, exist_ok=True)
@@ -198,6 +217,8 @@ class GenerationPlan:
     first_seed: int = 0
     max_tries: int = 3
     """Seeds tried per task, as a multiple of ``episodes`` (at least ``episodes + 5``)."""
+    sensor: str = "ideal"
+    """The cameras the images are recorded through (a name of tvf.sim.sensors.SENSORS)."""
 
     @property
     def folder(self) -> Path:
@@ -385,6 +406,9 @@ def generate(
     report = GenerationReport(folder)
     start = time.perf_counter()
     with _Lock(folder):
+        check_sensor(folder, plan.sensor)
+        if job is None and plan.sensor != "ideal":
+            job = partial(episode_job, sensor=plan.sensor)
         remove_stale_tmp(folder)
         states = _initial_states(plan, report)
         total = sum(min(s.want, len(s.seeds)) - s.kept for s in states)
@@ -436,6 +460,31 @@ def generate(
     report.short = {s.name: s.kept for s in states if s.kept < s.want}
     report.seconds = time.perf_counter() - start
     return report
+
+
+def check_sensor(folder: Path, sensor: str) -> None:
+    """Refuse to add episodes of one sensor to a split folder of another; name a new folder's sensor."""
+    get_sensor(sensor)
+    path = folder / SENSOR_FILE
+    recorded = read_sensor(folder)
+    if recorded != sensor and (path.exists() or episode_files(folder)):
+        raise DataError(
+            f"{folder} holds demonstrations recorded through the {recorded!r} sensor; pass --sensor "
+            f"{recorded} to resume it, or choose another --out for {sensor!r}"
+        )
+    if sensor != "ideal" and not path.exists():
+        atomic_write_json(path, {"sensor": sensor})
+
+
+def read_sensor(folder: Path) -> str:
+    """The sensor a split folder was recorded through: its ``sensor.json``, or ``ideal``."""
+    path = Path(folder) / SENSOR_FILE
+    if not path.exists():
+        return "ideal"
+    try:
+        return str(json.loads(path.read_text())["sensor"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path}: unreadable ({exc!r}); it names the sensor of the folder's demos") from None
 
 
 def _submit(

@@ -100,6 +100,8 @@ def evaluate(
     meta["weights"] = weights_hashes(spec)
     if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"
+    elif not envs.ideal:  # the simulator through another sensor (tvf.sim.sensors): recorded likewise
+        meta["sensor"] = envs.describe()
     meta_path = out / "eval.json"
     if meta_path.exists() and not restart:
         changed = _changed_settings(meta_path, meta)

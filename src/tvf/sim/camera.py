@@ -136,6 +136,24 @@ def reference_cameras(width: int = 640, height: int = 480) -> tuple[CameraConfig
     return tuple(cam.rescaled(width, height) for cam in REFERENCE_CAMERAS)
 
 
+ONE_CAMERA_ELEVATION_DEG = 60.0
+ONE_CAMERA_DISTANCE = 0.8
+#: The single camera of a rig like the paper's real set-up: in front of the workspace (opposite the arm),
+#: looking down at 60 degrees below the horizontal at the workspace centre from 0.8 m, with the same
+#: intrinsics as the reference cameras. At 480 x 360 the whole 0.5 x 0.5 m workspace, up to z = 0.28 m,
+#: is in view (image rows 3-287, columns 45-435) at 0.43-0.92 m depth (docs/real-robot.md).
+ONE_CAMERA = CameraConfig(
+    "one",
+    (0.5 + ONE_CAMERA_DISTANCE * math.cos(math.radians(ONE_CAMERA_ELEVATION_DEG)), 0.0,
+     ONE_CAMERA_DISTANCE * math.sin(math.radians(ONE_CAMERA_ELEVATION_DEG))),
+    (math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG), math.pi, -math.pi / 2), 640, 480, 450.0,
+)  # fmt: skip
+
+Rig = Literal["three", "one"]
+RIGS: dict[str, tuple[CameraConfig, ...]] = {"three": REFERENCE_CAMERAS, "one": (ONE_CAMERA,)}
+"""The camera rigs: the three Ravens cameras (the default) or the one camera of a real set-up."""
+
+
 @dataclass(frozen=True)
 class ObservationConfig:
     """How an observation is rendered. Defaults: see ``docs/observation.md`` (measured)."""
@@ -145,13 +163,18 @@ class ObservationConfig:
     shadows: bool = False
     renderer: Renderer = "tiny"
     fill_holes: bool = True
+    rig: Rig = "three"
+    """Which cameras render: ``three`` (the Ravens front, left, right) or ``one`` (:data:`ONE_CAMERA`);
+    a :class:`tvf.sim.sensors.SensorConfig` chooses it for an environment."""
 
     def __post_init__(self) -> None:
         if self.renderer not in _RENDERERS:
             raise ValueError(f"renderer must be one of {sorted(_RENDERERS)}, got {self.renderer!r}")
+        if self.rig not in RIGS:
+            raise ValueError(f"rig must be one of {sorted(RIGS)}, got {self.rig!r}")
 
     def cameras(self) -> tuple[CameraConfig, ...]:
-        return reference_cameras(self.width, self.height)
+        return tuple(cam.rescaled(self.width, self.height) for cam in RIGS[self.rig])
 
     def pinholes(self) -> tuple[PinholeCamera, ...]:
         """The cameras as calibrated intrinsics + poses, the renderer's sampling offset in cx, cy."""

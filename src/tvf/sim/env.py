@@ -6,6 +6,12 @@ scene: independent of any expert, one render, exact targets) is in ``obs['desire
 ``info['goal']``. ``step(action)`` runs one pick-and-place, where ``action`` is a ``(2, 4)`` array of
 pick and place poses (x, y, z, yaw) in metres and radians (docs/gymnasium.md).
 
+Sensors: ``sensor=`` (a name of :data:`tvf.sim.sensors.SENSORS` or a :class:`~tvf.sim.sensors.SensorConfig`)
+chooses the camera rig and how its views are spoilt before the fusion (noise, dropout, calibration
+errors); the goal image goes through the same sensor with its own draws. The default, ``ideal``, is the
+simulator's perfect three cameras. ``info["coverage"]`` is the fraction of workspace pixels a camera
+measured before hole filling.
+
 Seeds: one ``numpy.random.SeedSequence(seed)`` is split into independent streams for the layout,
 the oracle's order, and the oracle's and random actions' choices, so the same seed gives the same
 scene, the same oracle trajectory and the same images.
@@ -20,8 +26,11 @@ import gymnasium as gym
 import numpy as np
 
 from tvf.errors import TvfError
+from tvf.fusion import PinholeCamera, View, fill_holes, fuse_with_coverage
 from tvf.geometry import WORKSPACE
+from tvf.sim import sensors
 from tvf.sim.oracle import oracle_action, random_action
+from tvf.sim.sensors import SensorConfig, get_sensor
 from tvf.sim.success import Progress, evaluate_structure
 from tvf.sim.world import SimConfig, World
 from tvf.tasks import Task, get_task, load_tasks
@@ -40,6 +49,8 @@ class EnvConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     step_slack: int = 0
     """Extra steps allowed beyond the task's horizon (one step per block) before truncation."""
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    """The cameras' realism (tvf.sim.sensors); its ``cameras`` sets the rig the world renders."""
 
 
 def validate_action(action: np.ndarray) -> np.ndarray:
@@ -109,6 +120,7 @@ class TvfEnv(gym.Env):
         render_mode: str | None = None,
         gui: bool = False,
         task_file: str | Path | None = None,
+        sensor: str | SensorConfig | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise TvfError(f"render_mode {render_mode!r} is not supported; use 'rgb_array' or None")
@@ -116,6 +128,11 @@ class TvfEnv(gym.Env):
         self.config = config or EnvConfig()
         if gui:
             self.config = replace(self.config, sim=replace(self.config.sim, gui=True))
+        if sensor is not None:
+            self.config = replace(self.config, sensor=get_sensor(sensor))
+        self.sensor = self.config.sensor
+        obs_cfg = replace(self.config.sim.observation, rig=self.sensor.cameras)
+        self.config = replace(self.config, sim=replace(self.config.sim, observation=obs_cfg))
         self.render_mode = render_mode
         self.world = World(self.config.sim)
         self.observation_space = gym.spaces.Dict({**image_space().spaces, "desired_goal": image_space()})
@@ -129,7 +146,10 @@ class TvfEnv(gym.Env):
         self._last_obs: dict[str, np.ndarray] | None = None
         self._goal: dict[str, np.ndarray] = {}
         self.goal_views: tuple[list, tuple] = ([], ())
-        """The raw camera views (and cameras) the goal image of this episode was fused from."""
+        """The camera views (and cameras) the goal image of this episode was fused from, as the sensor
+        recorded them (with a miscalibrated sensor: the poses the rig believes)."""
+        self.coverage: dict[str, float] = {}
+        """The fraction of workspace pixels measured before hole filling, of the last ``obs`` and ``goal``."""
 
     @property
     def max_steps(self) -> int:
@@ -147,16 +167,40 @@ class TvfEnv(gym.Env):
         self._oracle_rng = np.random.default_rng(oracle_ss)
         self.steps = 0
         self.terminated = False
-        self.goal_views = self.world.goal_views()
-        goal_color, goal_height = self.world.fuse(*self.goal_views)
+        self.goal_views = self._sense(*self.world.goal_views(), sensors.GOAL)
+        goal_color, goal_height = self._fuse(*self.goal_views, "goal")
         self._goal = {"color": goal_color, "height": goal_height}
         obs = self._observe()
         info = self._info(self.progress())
         info["goal"] = self._goal
         return obs, info
 
+    def _sense(
+        self, views: list[View], cameras: tuple[PinholeCamera, ...], stream: int
+    ) -> tuple[list[View], tuple[PinholeCamera, ...]]:  # fmt: skip
+        """The rendered views as this episode's sensor records them at the current step."""
+        return self.sensor.apply(views, cameras, self.seed_value or 0, self.steps, stream)
+
+    def sensed_views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
+        """The current scene's views as the sensor records them (what the observation is fused from)."""
+        return self._sense(*self.world.views(), sensors.OBSERVATION)
+
+    def _fuse(self, views: list[View], cameras: tuple[PinholeCamera, ...], kind: str):
+        """Views -> the top-down colour and height (holes filled as the observation config says)."""
+        color, height, covered = fuse_with_coverage(views, cameras, self.world.workspace)
+        self.coverage[kind] = float(covered.mean())
+        if self.config.sim.observation.fill_holes:
+            color, height = fill_holes(color, height, covered)
+        return color, height
+
+    def observe(self) -> dict[str, np.ndarray]:
+        """A new picture of the current scene, ``{"color", "height"}``; the same as the last step's."""
+        self._observe()
+        assert self._last_obs is not None
+        return {k: v.copy() for k, v in self._last_obs.items()}
+
     def _observe(self) -> dict:
-        color, height = self.world.observe()
+        color, height = self._fuse(*self.sensed_views(), "obs")
         self._last_obs = {"color": color, "height": height}
         goal = {k: v.copy() for k, v in self._goal.items()}  # new arrays on every call (Gymnasium's rule)
         return {**self._last_obs, "desired_goal": goal}
@@ -171,6 +215,7 @@ class TvfEnv(gym.Env):
             "success": progress.success,
             "progress": progress.fraction,
             "steps": self.steps,
+            "coverage": self.coverage.get("obs", 0.0),
         }
 
     def step(self, action):

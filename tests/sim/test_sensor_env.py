@@ -1,0 +1,105 @@
+"""The simulator through a sensor: `ideal` is today's observation bit for bit, noisy episodes are seeded,
+the one-camera rig sees the workspace, the oracle still finishes through the noisy rig, and the factories
+pickle and are recorded by `tvf eval`."""
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+from cli_run import run
+
+from tvf.errors import TvfError
+from tvf.evaluate.closed_loop import evaluate
+from tvf.evaluate.runner import env_factory, run_episode
+from tvf.fusion import fuse
+from tvf.policies import OraclePolicy, PolicySpec
+from tvf.sim.env import TvfEnv
+from tvf.sim.factory import D415_ONE, SimEnvFactory, sim_env
+from tvf.tasks import get_task
+
+TASK = get_task("stack-tower")
+
+
+def test_the_ideal_sensor_gives_todays_observation_bit_for_bit():
+    env = sim_env(TASK)
+    obs, info = env.reset(seed=1)
+    views, cameras = env.world.views()
+    color, height = fuse(views, cameras, env.world.workspace, fill=True)  # what World.observe returns
+    assert np.array_equal(obs["color"], color) and np.array_equal(obs["height"], height)
+    goal_color, goal_height = env.world.goal_observation()
+    goal = info["goal"]
+    assert np.array_equal(goal["color"], goal_color) and np.array_equal(goal["height"], goal_height)
+    named = SimEnvFactory(sensor="ideal")(TASK)
+    assert named is env and SimEnvFactory().ideal and not D415_ONE.ideal
+    assert 0.99 < info["coverage"] <= 1.0 and len(cameras) == 3
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    env = TvfEnv(TASK, sensor="d415-one")
+    yield env
+    env.close()
+
+
+def test_noisy_observations_are_seeded_per_episode_and_step(noisy):
+    obs, info = noisy.reset(seed=1)
+    again, _ = noisy.reset(seed=1)
+    assert np.array_equal(obs["height"], again["height"]) and np.array_equal(obs["color"], again["color"])
+    assert np.array_equal(noisy.observe()["height"], obs["height"])  # a new picture of the same step
+    other, _ = noisy.reset(seed=3)
+    assert not np.array_equal(other["height"], obs["height"])
+    # the goal has draws of its own: its views differ from the scene's where both see the table only
+    clean = sim_env(TASK)
+    clean_obs, clean_info = clean.reset(seed=1)
+    noisy.reset(seed=1)
+    d_obs = np.abs(noisy.observe()["height"] - clean_obs["height"])
+    assert 0.0003 < d_obs.mean() < 0.003  # about a millimetre: the D415's noise at 0.4-0.9 m
+    d_goal = np.abs(obs["desired_goal"]["height"] - clean_info["goal"]["height"])
+    assert 0.0003 < d_goal.mean() < 0.003 and not np.array_equal(d_obs, d_goal)
+
+
+def test_the_one_camera_rig_sees_the_workspace(noisy):
+    _, info = noisy.reset(seed=1)
+    views, cameras = noisy.sensed_views()
+    assert [c.name for c in cameras] == ["one"] and len(views) == 1
+    assert 0.85 < info["coverage"] < 0.97  # occlusion and dropout holes are real now; the fusion fills them
+    assert (views[0][1] == 0).mean() > 0.001  # dropped pixels read 0, as a real depth image
+
+
+def test_the_oracle_still_finishes_through_the_noisy_one_camera_rig(noisy):
+    result = run_episode(noisy, 1, OraclePolicy(noisy), TASK.horizon)
+    assert result.success, result.primitives
+
+
+def test_sensor_factories_pickle_and_are_named_by_env(tmp_path):
+    factory = env_factory("tvf.sim.factory:D415_ONE")
+    assert factory == SimEnvFactory(sensor="d415-one") and pickle.loads(pickle.dumps(factory)) == factory
+    with pytest.raises(TvfError, match="unknown sensor 'nope'"):
+        SimEnvFactory(sensor="nope")
+    with pytest.raises(TvfError, match="unknown sensor 'nope'"):
+        TvfEnv(TASK, sensor="nope")
+
+
+def test_an_evaluation_records_the_sensor(tmp_path):
+    evaluate(PolicySpec("oracle"), [TASK], 1, 1, 1, tmp_path, envs=SimEnvFactory(sensor="one"))
+    assert json.loads((tmp_path / "eval.json").read_text())["sensor"] == "one"
+    assert "sensor" not in json.loads((_eval_ideal(tmp_path / "ideal") / "eval.json").read_text())
+
+
+def _eval_ideal(out):
+    evaluate(PolicySpec("oracle"), [TASK], 1, 1, 1, out)
+    return out
+
+
+def test_tvf_render_shows_a_noisy_observation(tmp_path, capsys):
+    code, out, err = run(capsys, "render", "--task", "stack-tower", "--seed", "1", "--sensor", "d415-one",
+                         "--out", str(tmp_path / "r"), "--export-views", str(tmp_path / "rig"))  # fmt: skip
+    assert code == 0, err
+    assert "sensor d415-one" in out and (tmp_path / "r" / "initial.png").exists()
+    assert sorted(p.name for p in (tmp_path / "rig" / "scene").iterdir()) == [
+        "one.color.png", "one.depth.png", "one.yaml", "workspace.yaml"]  # fmt: skip
+    code, _, err = run(
+        capsys, "render", "--task", "stack-tower", "--sensor", "d999", "--out", str(tmp_path / "x")
+    )
+    assert code == 2 and "unknown sensor 'd999'" in err and len(err.strip().splitlines()) == 1
