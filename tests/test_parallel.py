@@ -147,3 +147,37 @@ def test_a_killed_parent_leaves_no_pool_workers(tmp_path, sig):
         err = proc.stderr.read().decode()
         assert "tvf.errors.Terminated: terminated by signal 15" in err  # the interrupt, raised in the parent
         assert "BrokenProcessPool" not in err
+
+
+def test_the_experiment_hands_its_backend_to_the_data_and_eval_stages(tmp_path, monkeypatch):
+    from tvf.data.generation import GenerationReport
+    from tvf.experiment import pipeline
+    from tvf.experiment.config import ExperimentConfig
+
+    seen = []
+    monkeypatch.setattr(pipeline, "generate", lambda plan, workers, tasks=None, **where: (
+        seen.append(("data", workers, where)) or GenerationReport(plan.folder)))  # fmt: skip
+    monkeypatch.setattr(pipeline, "evaluate", lambda *args, **where: seen.append(("eval", args[4], where)))
+    cfg = ExperimentConfig(out=tmp_path, workers=3, backend="ray", address="head:6379", methods="oracle",
+                           tasks="stack-tower", train_tasks="stack-tower")  # fmt: skip
+    pipeline.stage_data(cfg)
+    pipeline.stage_eval(cfg)
+    where = {"backend": "ray", "address": "head:6379"}
+    assert seen == [("data", 3, where), ("data", 3, where), ("eval", 3, where)]
+    from tvf.experiment.sweep import shared_settings
+
+    assert "backend" not in shared_settings(cfg) and "address" not in shared_settings(cfg)  # not recorded
+
+
+def test_a_terminated_command_says_interrupted_and_exits_143(monkeypatch, capsys):
+    from tvf.cli import main
+    from tvf.cli.data import DemosCmd
+
+    def terminated(self):
+        raise Terminated("terminated by signal 15")
+
+    monkeypatch.setattr(DemosCmd, "run", terminated)
+    with pytest.raises(SystemExit) as exit_:
+        main(["demos", "--tasks", "stack-tower"])
+    assert exit_.value.code == 143
+    assert "interrupted; finished work is kept" in capsys.readouterr().err

@@ -14,6 +14,7 @@ ray = pytest.importorskip("ray")
 from ray import cloudpickle  # noqa: E402
 
 import tvf.parallel  # noqa: E402 - after the skip
+from tvf.cli import main  # noqa: E402
 from tvf.data.generation import GenerationPlan, generate  # noqa: E402
 from tvf.errors import TvfError  # noqa: E402
 from tvf.evaluate.closed_loop import evaluate  # noqa: E402
@@ -88,24 +89,25 @@ def _files(folder: Path) -> dict[str, bytes]:
 
 
 def test_ray_demos_are_the_same_bytes_as_the_pools(local_ray, tmp_path):
-    """A real oracle dataset (one task, two episodes) from 2 pool workers and from 2 Ray workers, where
-    the Ray workers send the files' bytes back and this process writes them: every file is the same,
-    the manifest (with every episode's checksums) included."""
-    made = {}
-    for backend in ("local", "ray"):
-        plan = GenerationPlan(("stack-tower",), "train", 2, tmp_path / backend)
-        report = generate(plan, 2, progress=False, backend=backend)
-        assert report.generated == 2 and not report.short
-        made[backend] = _files(plan.folder)
+    """A real oracle dataset (one task, two test-split episodes) from 2 pool workers and from 2 Ray workers
+    (`tvf demos --backend ray`), where the Ray workers send the files' bytes back and this process writes
+    them: every file is the same, the manifest (with every episode's checksums) included."""
+    plan = GenerationPlan(("stack-tower",), "test", 2, tmp_path / "local")  # oracle steps only
+    report = generate(plan, 2, progress=False)
+    assert report.generated == 2 and not report.short
+    main(["demos", "--tasks", "stack-tower", "--split", "test", "--episodes", "2", "--workers", "2",
+          "--backend", "ray", "--out", str(tmp_path / "ray")])  # fmt: skip
+    made = {backend: _files(tmp_path / backend / "test") for backend in ("local", "ray")}
     assert "manifest.json" in made["ray"] and len(made["ray"]) >= 3
     assert made["ray"] == made["local"]
 
 
 def test_ray_evaluation_writes_the_same_episodes_jsonl(local_ray, tmp_path):
-    logs = {}
-    for backend, workers in (("local", 1), ("ray", 2)):
-        out = tmp_path / backend
-        evaluate(PolicySpec("oracle"), ["stack-tower"], 2, 1, workers, out, backend=backend)
-        logs[backend] = (out / "episodes.jsonl").read_bytes(), (out / "summary.json").read_bytes()
+    """The library with one process against `tvf eval --backend ray` (the instance above is reused)."""
+    evaluate(PolicySpec("oracle"), ["stack-tower"], 2, 1, 1, tmp_path / "local")
+    main(["eval", "--method", "oracle", "--tasks", "stack-tower", "--episodes", "2", "--seed-start", "1",
+          "--workers", "2", "--backend", "ray", "--out", str(tmp_path / "ray")])  # fmt: skip
+    logs = {b: ((tmp_path / b / "episodes.jsonl").read_bytes(), (tmp_path / b / "summary.json").read_bytes())
+            for b in ("local", "ray")}  # fmt: skip
     assert logs["ray"] == logs["local"]
     assert logs["ray"][0].count(b"\n") == 2

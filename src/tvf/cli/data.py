@@ -32,9 +32,9 @@ class DemosCmd:
     workers: int = 1
     """Parallel processes (one PyBullet client each); with --backend ray, Ray tasks at once."""
     backend: Literal["local", "ray"] = "local"
-    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks: a local Ray instance of
-    --workers CPUs, or the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md). The results
-    are the same bytes either way."""
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
     address: str | None = None
     """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     first_seed: int = 0

@@ -45,9 +45,9 @@ class EvalCmd:
     """Simulators each process steps in lock-step, their decisions batched into shared model calls (pays on
     a GPU; the episodes are those of one at a time; docs/planner.md)."""
     backend: Literal["local", "ray"] = "local"
-    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks: a local Ray instance of
-    --workers CPUs, or the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md). The results
-    are the same bytes either way."""
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
     address: str | None = None
     """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     step_slack: int = 0

@@ -83,9 +83,9 @@ class ExperimentConfig:
     """Closed-loop evaluation: simulators each process steps together, their decisions batched (pays on a
     GPU; the results are those of one at a time; docs/planner.md)."""
     backend: Literal["local", "ray"] = "local"
-    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks: a local Ray instance of
-    --workers CPUs, or the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md). The results
-    are the same bytes either way."""
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
     address: str | None = None
     """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     task_file: Path | None = None
