@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -76,11 +77,14 @@ def test_the_cli_refuses_an_address_without_ray(tmp_path, capsys):
 
 
 def test_sigterm_raises_only_while_inside_and_restores_the_default():
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
-    with pytest.raises(Terminated), sigterm_raises():
-        os.kill(os.getpid(), signal.SIGTERM)
-        time.sleep(5)  # the handler runs at the next bytecode; never reached
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    before = signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as in a fresh process (Ray sets its own)
+    try:
+        with pytest.raises(Terminated), sigterm_raises():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler runs at the next bytecode; never reached
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 PARENT = textwrap.dedent(
@@ -181,3 +185,17 @@ def test_a_terminated_command_says_interrupted_and_exits_143(monkeypatch, capsys
         main(["demos", "--tasks", "stack-tower"])
     assert exit_.value.code == 143
     assert "interrupted; finished work is kept" in capsys.readouterr().err
+
+
+def test_an_unreachable_or_malformed_cluster_address_is_one_line_at_once():
+    from tvf.parallel import check_reachable
+
+    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    start = time.monotonic()
+    with pytest.raises(TvfError, match=f"cannot reach the Ray cluster at 127.0.0.1:{port}"):
+        check_reachable(f"127.0.0.1:{port}")
+    assert time.monotonic() - start < 5
+    with pytest.raises(TvfError, match="--address must be HOST:PORT"):
+        check_reachable("head-node")

@@ -4,6 +4,7 @@ the process pool, byte-identical datasets and evaluation logs, and a job whose w
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -27,12 +28,14 @@ def local_ray():
     """One quiet local Ray instance for the module (tvf's own start-up), shut down after it."""
     if ray.is_initialized():
         ray.shutdown()
+    sigterm = signal.getsignal(signal.SIGTERM)  # ray.init sets its own handler
     connect_ray(2)
     here = sys.modules[__name__]  # the jobs below travel by value: Ray's workers cannot import this file
     cloudpickle.register_pickle_by_value(here)
     yield
     cloudpickle.unregister_pickle_by_value(here)
     ray.shutdown()
+    signal.signal(signal.SIGTERM, sigterm)
 
 
 def staggered(x: int) -> tuple[int, int]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import threading
 import time
 from collections import deque
@@ -179,6 +180,8 @@ def connect_ray(workers: int, address: str | None = None) -> Any:
     ray = import_ray()
     if ray.is_initialized():
         return ray
+    if address and address != "auto":
+        check_reachable(address)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     os.environ.setdefault("RAY_worker_niceness", "0")  # Ray's default, +15, starves them on a busy host
     quiet = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
@@ -193,6 +196,22 @@ def connect_ray(workers: int, address: str | None = None) -> Any:
         hint = "; is `ray start --head` running there?" if address else ""
         raise TvfError(f"could not start or reach {where}: {first}{hint}") from None
     return ray
+
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """A one-line TvfError when nothing listens at ``HOST:PORT`` (Ray itself retries for minutes)."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise TvfError(
+            f"--address must be HOST:PORT (the head node's `ray start --head` port), got {address!r}"
+        )
+    try:
+        socket.create_connection((host, int(port)), timeout).close()
+    except OSError as exc:
+        raise TvfError(
+            f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); is `ray start --head` "
+            "running there, and is the port open?"
+        ) from None
 
 
 def check_backend(backend: str, address: str | None = None) -> None:
