@@ -166,8 +166,9 @@ def test_the_experiment_hands_its_backend_to_the_data_and_eval_stages(tmp_path, 
                            tasks="stack-tower", train_tasks="stack-tower")  # fmt: skip
     pipeline.stage_data(cfg)
     pipeline.stage_eval(cfg)
-    where = {"backend": "ray", "address": "head:6379"}
-    assert seen == [("data", 3, where), ("data", 3, where), ("eval", 3, where)]
+    assert [(stage, workers) for stage, workers, _ in seen] == [("data", 3), ("data", 3), ("eval", 3)]
+    for _, _, kwargs in seen:
+        assert kwargs["backend"] == "ray" and kwargs["address"] == "head:6379"
     from tvf.experiment.sweep import shared_settings
 
     assert "backend" not in shared_settings(cfg) and "address" not in shared_settings(cfg)  # not recorded

@@ -106,11 +106,14 @@ def test_ray_demos_are_the_same_bytes_as_the_pools(local_ray, tmp_path):
 
 
 def test_ray_evaluation_writes_the_same_episodes_jsonl(local_ray, tmp_path):
-    """The library with one process against `tvf eval --backend ray` (the instance above is reused)."""
+    """The library with one process against `tvf eval --backend ray`, also with --envs-per-worker 2 (the
+    instance above is reused)."""
     evaluate(PolicySpec("oracle"), ["stack-tower"], 2, 1, 1, tmp_path / "local")
-    main(["eval", "--method", "oracle", "--tasks", "stack-tower", "--episodes", "2", "--seed-start", "1",
-          "--workers", "2", "--backend", "ray", "--out", str(tmp_path / "ray")])  # fmt: skip
+    flags = ["eval", "--method", "oracle", "--tasks", "stack-tower", "--episodes", "2", "--seed-start", "1",
+             "--workers", "2", "--backend", "ray"]  # fmt: skip
+    main([*flags, "--out", str(tmp_path / "ray")])
+    main([*flags, "--envs-per-worker", "2", "--out", str(tmp_path / "group")])
     logs = {b: ((tmp_path / b / "episodes.jsonl").read_bytes(), (tmp_path / b / "summary.json").read_bytes())
-            for b in ("local", "ray")}  # fmt: skip
-    assert logs["ray"] == logs["local"]
+            for b in ("local", "ray", "group")}  # fmt: skip
+    assert logs["ray"] == logs["local"] == logs["group"]  # one Ray task per episode, or per group of two
     assert logs["ray"][0].count(b"\n") == 2
