@@ -16,6 +16,11 @@ class StaleError(TvfError):
     weights or data. The message names what changed; a restart flag lets the command start it again."""
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM while a pool runs (:func:`tvf.parallel.sigterm_raises`): an interrupt, so the pool's workers
+    are ended on the way out and the command exits as after Ctrl-C (code 143), finished work kept."""
+
+
 class DiskFullError(TvfError):
     """No space left on the device while writing ``path``: the partial file is gone, finished work is kept.
 

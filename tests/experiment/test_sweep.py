@@ -82,7 +82,7 @@ class Stand_ins:  # noqa: N801 - a namespace of the stand-ins and what they saw
         self.demos: dict[tuple[int, int], list[tuple[str, int]]] = {}
         self.interrupt: set[tuple[int, int]] = set()
 
-    def generate(self, plan, workers, tasks=None):
+    def generate(self, plan, workers, tasks=None, **where):
         report = REAL_GENERATE(plan, 1, progress=False, tasks=tasks, job=fake_job, log=lambda s: None)
         self.generated.append((str(plan.folder), plan.split, report.generated))
         return report

@@ -19,7 +19,7 @@ from tvf.cli.quickstart import QuickstartCmd
 from tvf.cli.train import TrainCmd, relaunch_command
 from tvf.cli.viz import VizCmd
 from tvf.cli.world import OracleCmd, RenderCmd, TasksCmd
-from tvf.errors import TvfError
+from tvf.errors import Terminated, TvfError
 from tvf.io import as_disk_full
 
 DESCRIPTION = """tvf: Transporters with Visual Foresight.
@@ -57,9 +57,9 @@ def main(argv: list[str] | None = None) -> None:
         command.run()
     except TvfError as exc:
         _fail(exc)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM while a pool runs (tvf.errors.Terminated)
         print("tvf: interrupted; finished work is kept, re-run the same command to resume", file=sys.stderr)
-        raise SystemExit(130) from None
+        raise SystemExit(143 if isinstance(exc, Terminated) else 130) from None
     except Exception as exc:  # a full disk that no write site named (a library's own file)
         full = as_disk_full(exc)
         if full is None:

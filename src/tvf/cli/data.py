@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
@@ -30,7 +30,13 @@ class DemosCmd:
     out: Path = Path("data/demos")
     """Dataset root; this split goes to OUT/SPLIT."""
     workers: int = 1
-    """Parallel processes (one PyBullet client each)."""
+    """Parallel processes (one PyBullet client each); with --backend ray, Ray tasks at once."""
+    backend: Literal["local", "ray"] = "local"
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
+    address: str | None = None
+    """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     first_seed: int = 0
     """Seeds start here (the first even one for train, the first odd one for test)."""
     max_tries: int = 3
@@ -57,7 +63,8 @@ class DemosCmd:
         check_output_dir(self.out / self.split)
         plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries,
                               self.sensor)  # fmt: skip
-        report = generate(plan, self.workers, progress=True, tasks=table)
+        report = generate(plan, self.workers, progress=True, tasks=table, backend=self.backend,
+                          address=self.address)  # fmt: skip
         print(
             f"{plan.folder}: {report.generated} episodes written, {report.skipped} already there, "
             f"{len(report.failures)} failed seeds; {report.seconds:.0f} s"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import tyro
 
@@ -39,10 +40,16 @@ class EvalCmd:
     seed_start: int = TEST_SEED_START
     """Episode i uses seed SEED_START + 2i: 1000001 = the test range, 1 = the validation range."""
     workers: int = 1
-    """Parallel processes (one simulator and one model copy each)."""
+    """Parallel processes (one simulator and one model copy each); with --backend ray, Ray tasks at once."""
     envs_per_worker: int = 1
     """Simulators each process steps in lock-step, their decisions batched into shared model calls (pays on
     a GPU; the episodes are those of one at a time; docs/planner.md)."""
+    backend: Literal["local", "ray"] = "local"
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
+    address: str | None = None
+    """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     step_slack: int = 0
     """Extra steps beyond one per block (0 = the paper's protocol)."""
     task_file: Path | None = None
@@ -84,6 +91,8 @@ class EvalCmd:
             envs,
             self.restart,
             self.envs_per_worker,
+            self.backend,
+            self.address,
         )
         print(summary_markdown(summary))
 

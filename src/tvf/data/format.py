@@ -305,10 +305,18 @@ def _json_default(value: Any) -> Any:
 def write_h5(path: Path, episode: Episode) -> int:
     """Write ``episode`` to ``path`` (not atomic; see :func:`write_episode`); returns the file size.
 
-    The same episode gives the same bytes: the checksums depend on the content only. HDF5 builds the
-    file in memory and one plain write puts it on disk: a full disk is then an ordinary ``OSError``
-    (HDF5 writing to a full disk itself leaves its library broken and the process segfaults).
+    HDF5 builds the file in memory (:func:`h5_bytes`) and one plain write puts it on disk: a full disk is
+    then an ordinary ``OSError`` (HDF5 writing to a full disk itself leaves its library broken and the
+    process segfaults).
     """
+    data = h5_bytes(episode)
+    Path(path).write_bytes(data)
+    return len(data)
+
+
+def h5_bytes(episode: Episode) -> bytes:
+    """The bytes of ``episode``'s file; the same episode gives the same bytes (the checksums depend on the
+    content only), so a file may be built in one process and written by another."""
     episode.validate()
     image = io.BytesIO()
     with h5py.File(image, "w", userblock_size=SEAL_SIZE) as f:
@@ -340,9 +348,7 @@ def write_h5(path: Path, episode: Episode) -> int:
             )
         sums = {**episode_checksums(episode), "attrs": attrs_sha256(f.attrs)}  # the attributes as read back
         f.attrs[CHECKSUMS] = json.dumps(sums, sort_keys=True, separators=(",", ":"))
-    data = sealed(image.getvalue())
-    Path(path).write_bytes(data)
-    return len(data)
+    return sealed(image.getvalue())
 
 
 def write_episode(path: str | Path, episode: Episode) -> int:

@@ -9,7 +9,9 @@ quota are discarded, so the kept set never depends on timing or on ``workers``.
 A train-split episode runs ``n_blocks + 2`` steps, two of them random (``random_schedule`` from the
 fourth stream of ``SeedSequence(seed)``, independent of the environment's three); a test-split
 episode runs ``n_blocks`` oracle steps. Each episode gets a fresh simulator, so it depends on its
-seed only. Failures go to ``failures.jsonl``; a re-run skips complete episodes and known failures,
+seed only. With the Ray backend (``backend="ray"``, maybe on a cluster without a shared disk) a worker
+sends its episode's file bytes back instead, and the parent writes the temporary file itself; the files
+are the same bytes. Failures go to ``failures.jsonl``; a re-run skips complete episodes and known failures,
 and removes temporary files that an interrupted run left behind. A full disk stops the run with one
 :class:`~tvf.errors.DiskFullError` saying how many episodes are kept; no temporary file stays.
 """
@@ -32,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tvf.data.dataset import FAILURES, episode_files, scan, write_manifest
-from tvf.data.format import SPLITS, DataError, Episode, episode_name, read_info, write_h5
+from tvf.data.format import SPLITS, DataError, Episode, episode_name, h5_bytes, read_info, write_h5
 from tvf.errors import DiskFullError, TvfError
 from tvf.io import (
     TMP_SUFFIX,
@@ -44,7 +46,7 @@ from tvf.io import (
     read_jsonl,
     temp_path,
 )
-from tvf.parallel import make_pool
+from tvf.parallel import check_backend, make_pool, sigterm_raises
 from tvf.sim.env import EnvConfig, TvfEnv
 from tvf.sim.oracle import random_schedule
 from tvf.sim.sensors import get_sensor
@@ -111,6 +113,8 @@ class Outcome:
     progress: float = 0.0
     tmp: str | None = None
     primitives: list[str] = field(default_factory=list)
+    data: bytes | None = None
+    """The episode's file, when the worker was given no folder (the parent writes it)."""
 
 
 def _state(env) -> tuple[np.ndarray, float]:
@@ -187,11 +191,14 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
     return episode, out
 
 
-def episode_job(task: Task, split: str, seed: int, folder: str, sensor: str = "ideal") -> Outcome:
+def episode_job(task: Task, split: str, seed: int, folder: str | None, sensor: str = "ideal") -> Outcome:
     """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
-    parent renames into place once every smaller seed of the task is settled."""
+    parent renames into place once every smaller seed of the task is settled (``folder`` None: return the
+    file's bytes in ``Outcome.data`` for the parent to write)."""
     episode, out = collect_episode(task, split, seed, sensor)
-    if episode is not None:
+    if episode is not None and folder is None:
+        out.data = h5_bytes(episode)
+    elif episode is not None:
         final = Path(folder) / task.name / episode_name(seed)
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = temp_path(final)
@@ -390,22 +397,26 @@ def generate(
     progress: bool = True,
     tasks: TaskTable | None = None,
     log: Callable[[str], None] | None = None,
-    job: Callable[[Task, str, int, str], Outcome] | None = None,
+    job: Callable[[Task, str, int, str | None], Outcome] | None = None,
     executor: Any = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> GenerationReport:
     """Generate (or complete) the dataset described by ``plan``; see the module docstring.
 
     ``tasks`` resolves the plan's task names (default: the built-in table; pass the one loaded with a
-    user's task file). ``job`` (default :func:`episode_job`) and ``executor`` (an object with ``submit``)
-    exist for tests; an executor passed in is not shut down here.
+    user's task file). ``backend`` and ``address`` choose where the episodes run (:mod:`tvf.parallel`;
+    ``workers`` episodes at once). ``job`` (default :func:`episode_job`) and ``executor`` (an object with
+    ``submit``) exist for tests; an executor passed in is not shut down here.
     """
+    check_backend(backend, address)
     table = tasks or BUILTIN
     resolved = {name: table.get(name) for name in plan.tasks}
     folder = plan.folder
     folder.mkdir(parents=True, exist_ok=True)
     report = GenerationReport(folder)
     start = time.perf_counter()
-    with _Lock(folder):
+    with _Lock(folder), sigterm_raises():
         check_sensor(folder, plan.sensor)
         if job is None and plan.sensor != "ideal":
             job = partial(episode_job, sensor=plan.sensor)
@@ -419,16 +430,17 @@ def generate(
         pool: Any
         if executor is not None:
             pool = executor
-        elif workers <= 1:
+        elif workers <= 1 and backend == "local":
             pool = _InlinePool()
         else:
-            pool = make_pool(workers)
+            pool = make_pool(workers, backend, address)
         futures: dict[Future, _TaskState] = {}
-        window = max(1, 2 * workers)
+        window = max(1, workers if backend == "ray" else 2 * workers)  # Ray: at most workers at once
+        target = None if backend == "ray" else str(plan.folder)  # Ray: the bytes come back here
         full: DiskFullError | None = None
         try:
             while True:
-                _submit(states, futures, pool, plan, window, job or episode_job, resolved)
+                _submit(states, futures, pool, plan, window, job or episode_job, resolved, target)
                 if not futures:
                     break
                 done, _ = wait(list(futures), return_when=FIRST_COMPLETED)
@@ -488,7 +500,8 @@ def read_sensor(folder: Path) -> str:
 
 
 def _submit(
-    states: list[_TaskState], futures: dict, pool, plan: GenerationPlan, window: int, job, tasks: dict
+    states: list[_TaskState], futures: dict, pool, plan: GenerationPlan, window: int, job, tasks: dict,
+    folder: str | None,
 ) -> None:  # fmt: skip
     """Fill the pool, round-robin over tasks, never running more seeds of a task than it may still need."""
     progressed = True
@@ -501,7 +514,7 @@ def _submit(
             if st.finished or not st.pending or st.kept + unsettled + st.in_flight >= st.want:
                 continue
             seed = st.pending.popleft()
-            futures[pool.submit(job, tasks[st.name], plan.split, seed, str(plan.folder))] = st
+            futures[pool.submit(job, tasks[st.name], plan.split, seed, folder)] = st
             st.in_flight += 1
             progressed = True
 
@@ -509,8 +522,12 @@ def _submit(
 def _record(st: _TaskState, out: Outcome, plan: GenerationPlan, report: GenerationReport, say) -> None:
     if out.ok:
         if st.kept >= st.want:  # the quota was filled by smaller seeds meanwhile
-            Path(out.tmp or "").unlink(missing_ok=True)
+            if out.tmp:
+                Path(out.tmp).unlink(missing_ok=True)
             return
+        if out.tmp is None and out.data is not None:
+            final = plan.folder / out.task / episode_name(out.seed)
+            out.tmp, out.data = str(_write_tmp(final, out.data)), None
         st.status[out.seed] = "done"
         st.tmp[out.seed] = str(out.tmp)
         return
@@ -527,6 +544,19 @@ def _record(st: _TaskState, out: Outcome, plan: GenerationPlan, report: Generati
     append_jsonl(plan.folder / FAILURES, rec)
     report.failures.append(rec)
     say(f"failed: {out.task} seed {out.seed}: {out.reason}")
+
+
+def _write_tmp(final: Path, data: bytes) -> Path:
+    """Write an episode's bytes (from a Ray worker) to the temporary file that :func:`_advance` commits."""
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_path(final)
+    try:
+        tmp.write_bytes(data)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        raise_if_disk_full(exc, final)
+        raise
+    return tmp
 
 
 # ------------------------------------------------------------------------------------ reusing another set
@@ -598,7 +628,9 @@ def generate_tasks(
     max_tries: int = 3,
     progress: bool = True,
     table: TaskTable | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> GenerationReport:
     """Convenience wrapper: build the plan and run :func:`generate`."""
     plan = GenerationPlan(tuple(tasks), split, episodes, Path(out), first_seed, max_tries)
-    return generate(plan, workers, progress, table)
+    return generate(plan, workers, progress, table, backend=backend, address=address)

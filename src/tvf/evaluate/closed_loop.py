@@ -17,7 +17,7 @@ from tvf.errors import StaleError
 from tvf.evaluate.runner import EpisodeResult, check_envs_per_worker, policy_episode, policy_episodes
 from tvf.io import append_jsonl, as_disk_full, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.models.checkpoint import trained_checkpoint
-from tvf.parallel import run_jobs
+from tvf.parallel import check_backend, run_jobs
 from tvf.policies import PolicySpec, get_method
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
@@ -78,6 +78,7 @@ def read_results(path: Path) -> list[dict]:
 def evaluate(
     spec: PolicySpec, tasks: Sequence[Task | str], episodes: int, seed_start: int, workers: int, out: Path,
     step_slack: int = 0, envs: EnvFactory | None = None, restart: bool = False, envs_per_worker: int = 1,
+    backend: str = "local", address: str | None = None,
 ) -> dict:  # fmt: skip
     """Evaluate ``spec`` on seeds :func:`~tvf.evaluate.runner.episode_seeds` of every task; write the outputs.
 
@@ -85,11 +86,14 @@ def evaluate(
     world of each task (default: the simulator) and must pickle when ``workers`` > 1. With
     ``envs_per_worker`` N > 1 each job is a group of N consecutive episodes that one process steps in
     lock-step, their decisions batched (:func:`~tvf.evaluate.runner.policy_episodes`); the records are
-    those of one episode at a time, committed in the same order. A resume is keyed
+    those of one episode at a time, committed in the same order. ``backend`` and ``address`` choose where
+    the jobs run (:func:`tvf.parallel.run_jobs`: the records are written here, in seed order, whatever ran
+    them, and the backend is not a setting of the evaluation). A resume is keyed
     on the settings and on the content (SHA-256) of the weights files: when either changed, the folder is
     refused, naming what changed, or with ``restart`` its episodes are dropped and run again. A full
     disk is a :class:`~tvf.errors.DiskFullError` counting the episodes kept.
     """
+    check_backend(backend, address)
     envs = envs or SimEnvFactory()
     check_envs_per_worker(envs_per_worker, envs)
     tasks = [t if isinstance(t, Task) else BUILTIN.get(t) for t in tasks]
@@ -115,7 +119,8 @@ def evaluate(
             stale.unlink(missing_ok=True)
     jobs = [(t, s) for t in tasks for s in episode_seeds(seed_start, episodes)]
     try:
-        return _run_and_summarise(spec, jobs, step_slack, envs, workers, out, meta, envs_per_worker)
+        where = {"backend": backend, "address": address}
+        return _run_and_summarise(spec, jobs, step_slack, envs, workers, out, meta, envs_per_worker, where)
     except Exception as exc:
         full = as_disk_full(exc, out)
         if full is None:
@@ -126,16 +131,17 @@ def evaluate(
 
 def _run_and_summarise(
     spec: PolicySpec, jobs: list[tuple[Task, int]], step_slack: int, envs: EnvFactory, workers: int,
-    out: Path, meta: dict, envs_per_worker: int = 1,
+    out: Path, meta: dict, envs_per_worker: int = 1, where: dict | None = None,
 ) -> dict:  # fmt: skip
-    """Record the settings, run the episodes not yet in ``episodes.jsonl`` and write the summary."""
+    """Record the settings, run the episodes not yet in ``episodes.jsonl`` and write the summary (``where``:
+    the ``backend`` and ``address`` of :func:`~tvf.parallel.run_jobs`)."""
     log = out / "episodes.jsonl"
     atomic_write_json(out / "eval.json", meta)
     done = {(r["task"], r["seed"]): r for r in read_results(log)}
     todo = [(t, s) for t, s in jobs if (t.name, s) not in done]
     if len(todo) < len(jobs):
         print(f"resuming: {len(jobs) - len(todo)} of {len(jobs)} episodes already in {log}")
-    for result in _episode_results(spec, todo, step_slack, envs, workers, envs_per_worker):
+    for result in _episode_results(spec, todo, step_slack, envs, workers, envs_per_worker, where or {}):
         record = result.to_dict()
         done[(record["task"], record["seed"])] = record
         append_jsonl(log, record)
@@ -148,19 +154,19 @@ def _run_and_summarise(
 
 def _episode_results(
     spec: PolicySpec, todo: list[tuple[Task, int]], step_slack: int, envs: EnvFactory, workers: int,
-    envs_per_worker: int,
+    envs_per_worker: int, where: dict,
 ) -> Iterator[EpisodeResult]:  # fmt: skip
     """The results of the ``todo`` episodes in their order: one job per episode, or per group of
     ``envs_per_worker`` consecutive episodes stepped together by one process."""
     if envs_per_worker == 1:
         yield from run_jobs(policy_episode, [(t, s, spec, step_slack, envs) for t, s in todo], workers,
-                            f"eval {spec.method}")  # fmt: skip
+                            f"eval {spec.method}", **where)  # fmt: skip
         return
     groups = [
         (todo[i : i + envs_per_worker], spec, step_slack, envs) for i in range(0, len(todo), envs_per_worker)
     ]
     desc = f"eval {spec.method} (groups of {envs_per_worker})"
-    for results in run_jobs(policy_episodes, groups, workers, desc):
+    for results in run_jobs(policy_episodes, groups, workers, desc, **where):
         yield from results
 
 

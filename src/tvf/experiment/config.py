@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Literal
 
 from tvf.errors import TvfError
 from tvf.seeds import TEST_SEED_START
@@ -21,6 +22,8 @@ RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", 
                  "vf_schedule": ("vf", "schedule"), "vf_warmup": ("vf", "warmup"),
                  "vf_changed_weight": ("vf", "vf_changed_weight")}  # fmt: skip
 """Experiment flags that override a field of a model kind's recipe (tvf.train.registry)."""
+NOT_RECORDED = ("workers", "envs_per_worker", "backend", "address", "stages", "ship", "device", "wandb")
+"""Flags that may change between runs of the same experiment or sweep (how, not what, it computes)."""
 
 
 @dataclass(frozen=True)
@@ -75,10 +78,16 @@ class ExperimentConfig:
     """VF extra loss weight on the pixels whose height changes (0: the reference's loss; default: the
     preset's; docs/models.md)."""
     workers: int = 2
-    """Parallel processes for data generation and evaluation."""
+    """Parallel processes for data generation and evaluation (with --backend ray: Ray tasks at once)."""
     envs_per_worker: int = 1
     """Closed-loop evaluation: simulators each process steps together, their decisions batched (pays on a
     GPU; the results are those of one at a time; docs/planner.md)."""
+    backend: Literal["local", "ray"] = "local"
+    """Where the episodes run: local (a process pool on this host) | ray (Ray tasks on a local Ray
+    instance of --workers CPUs, or on the cluster at --address; pip install 'tvf[ray]'; docs/parallel.md).
+    The results are the same bytes either way."""
+    address: str | None = None
+    """With --backend ray: the running Ray cluster to use, HOST:6379 (default: start a local instance)."""
     task_file: Path | None = None
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --tasks and --train-tasks may name."""
     device: str = "auto"

@@ -27,10 +27,11 @@ from tvf.errors import StaleError, TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
-from tvf.experiment.config import RECIPE_FLAGS, ExperimentConfig
+from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig
 from tvf.experiment.report import plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
+from tvf.parallel import check_backend, import_ray
 from tvf.policies import PolicySpec, label, make_policy
 from tvf.sim.factory import sim_env
 from tvf.train.registry import MODELS, with_recipe
@@ -51,8 +52,7 @@ def _read_recorded(path: Path) -> dict:
 def _record_config(cfg: ExperimentConfig) -> None:
     """Write EXP/experiment.json, refusing to mix two different experiments in one folder."""
     path = cfg.out / "experiment.json"
-    unrecorded = ("workers", "envs_per_worker", "stages", "ship", "device", "wandb", "restart")
-    keep = {k: v for k, v in asdict(cfg).items() if k not in unrecorded}
+    keep = {k: v for k, v in asdict(cfg).items() if k not in (*NOT_RECORDED, "restart")}
     keep = json.loads(json.dumps(keep, default=str))
     recorded = _read_recorded(path)
     # a folder made before a flag existed lacks it: it resumes when the flag keeps its (resolved) default
@@ -84,7 +84,7 @@ def data_plans(cfg: ExperimentConfig) -> list[GenerationPlan]:
 def stage_data(cfg: ExperimentConfig) -> None:
     table = cfg.task_table()
     for plan in data_plans(cfg):
-        report = generate(plan, cfg.workers, tasks=table)
+        report = generate(plan, cfg.workers, tasks=table, backend=cfg.backend, address=cfg.address)
         if report.short:
             raise TvfError(f"too few successful demonstrations in {plan.folder}: {report.short}")
 
@@ -125,13 +125,14 @@ def stage_eval(cfg: ExperimentConfig) -> None:
         _say(f"evaluating {method}: {len(tasks)} tasks x {cfg.episodes} episodes")
         spec, out = method_spec(cfg, method), cfg.out / "eval" / method
         run = (spec, tasks, cfg.episodes, cfg.seed_start, cfg.workers, out, cfg.step_slack)
+        where = {"envs_per_worker": cfg.envs_per_worker, "backend": cfg.backend, "address": cfg.address}
         try:
-            evaluate(*run, envs_per_worker=cfg.envs_per_worker)
+            evaluate(*run, **where)
         except StaleError:  # weights retrained (the data changed) or settings changed under it
             if not cfg.restart:
                 raise
             _say(f"{out}: its weights or settings changed; evaluating {method} again (--restart)")
-            evaluate(*run, restart=True, envs_per_worker=cfg.envs_per_worker)
+            evaluate(*run, restart=True, **where)
 
 
 def record_gif(policy, task, seed: int, path: Path, step_slack: int = 0):
@@ -218,11 +219,14 @@ def _check_recipes(cfg: ExperimentConfig) -> None:
 
 def check_experiment(cfg: ExperimentConfig) -> ExperimentConfig:
     """The configuration with its schedules filled from the preset; a one-line error for a bad stage,
-    method or recipe, before any work."""
+    method, recipe or backend (Ray missing, an address without it), before any work."""
     cfg = cfg.resolved()
     cfg.stage_list()
     cfg.method_list()
     _check_recipes(cfg)
+    check_backend(cfg.backend, cfg.address)
+    if cfg.backend == "ray":
+        import_ray()
     return cfg
 
 

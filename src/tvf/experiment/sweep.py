@@ -28,7 +28,7 @@ from pathlib import Path
 
 from tvf.data.generation import reuse_episodes
 from tvf.errors import TvfError
-from tvf.experiment.config import ExperimentConfig
+from tvf.experiment.config import NOT_RECORDED, ExperimentConfig
 from tvf.experiment.pipeline import check_experiment, data_plans, run_experiment
 from tvf.experiment.sweep_report import write_sweep_report
 from tvf.io import atomic_write_json, check_output_dir, read_json
@@ -36,8 +36,6 @@ from tvf.io import atomic_write_json, check_output_dir, read_json
 SWEEP_RECORD = "sweep.json"
 PER_CELL = ("out", "demos", "seed")
 """Settings that differ between the cells of a sweep."""
-NOT_RECORDED = ("workers", "envs_per_worker", "stages", "ship", "device", "wandb")
-"""Flags that may change between runs of the same sweep (as for one experiment)."""
 CELL_DIR = re.compile(r"demos-(\d+)/seed-(\d+)")
 
 
