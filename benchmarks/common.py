@@ -9,6 +9,7 @@ from collections.abc import Callable
 
 import torch
 
+from tvf.device import pick_device
 from tvf.models.presets import ModelPreset, get_preset
 
 
@@ -19,27 +20,45 @@ def best_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> flo
     """
     for _ in range(warmup):
         fn()
+        _synchronize()
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         fn()
+        _synchronize()  # CUDA runs asynchronously: a call is done when the device is
         times.append(time.perf_counter() - start)
     return min(times)
 
 
+def _synchronize() -> None:
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize()
+
+
+def on(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    """The batch's tensors on ``device`` (they are drawn on the CPU, from a CPU generator)."""
+    return {k: v.to(device) for k, v in batch.items()}
+
+
 def preset_benchmark_main(
-    label: str, bench_preset: Callable[[ModelPreset, int, bool], dict[str, object]], doc: str | None
+    label: str,
+    bench_preset: Callable[[ModelPreset, int, bool, torch.device], dict[str, object]],
+    doc: str | None,
 ) -> None:
-    """Parse the common flags, run ``bench_preset`` for each preset and print one JSON object."""
+    """Parse the common flags, run ``bench_preset(preset, repeats, channels_last, device)`` for each preset
+    and print one JSON object."""
     parser = argparse.ArgumentParser(description=doc)
     parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
     parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--nchw", action="store_true", help="contiguous NCHW instead of channels-last")
+    parser.add_argument("--device", default="cpu", help="cpu | cuda | auto (CUDA when present)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    device = pick_device(args.device)
     names = args.presets.split(",") + (["paper"] if args.paper else [])
-    results = {name: bench_preset(get_preset(name), args.repeats, not args.nchw) for name in names}
-    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw}
+    results = {name: bench_preset(get_preset(name), args.repeats, not args.nchw, device) for name in names}
+    meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw,
+            "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"}  # fmt: skip
     print(json.dumps({label: results, **meta}, indent=1))

@@ -1,14 +1,15 @@
 """GCTN costs on this CPU: train-step time at batch 1, 2 and 8, greedy action time, planner place maps.
 
 Prints one JSON object. Usage: python benchmarks/gctn.py [--paper] [--presets lite,smoke] [--repeats N]
-[--threads 2] [--nchw]. The ``paper`` preset runs only with --paper (minutes on a CPU).
+[--threads 2] [--nchw] [--device cuda] (on a GPU: the paper preset's samples/s against the paper's
+0.08 s a step). The ``paper`` preset runs only with --paper (minutes on a CPU).
 """
 
 from __future__ import annotations
 
 import torch
 
-from common import best_seconds, preset_benchmark_main
+from common import best_seconds, on, preset_benchmark_main
 from tvf.models.backbone import count_conv_macs, count_parameters, set_channels_last
 from tvf.models.gctn import GCTN
 from tvf.models.presets import ModelPreset
@@ -50,22 +51,24 @@ def train_step_seconds(model: GCTN, batch: dict[str, torch.Tensor], repeats: int
     return best_seconds(step, repeats)
 
 
-def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict[str, object]:
+def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool, device: torch.device
+                 ) -> dict[str, object]:  # fmt: skip
     generator = torch.Generator().manual_seed(0)
     torch.manual_seed(0)
     model = set_channels_last(GCTN(preset), channels_last)
     out: dict[str, object] = {"preset": preset.as_dict(), **gctn_size(model, preset)}
+    model.to(device)
     for batch_size in (1, 2, 8):
-        batch = random_batch(batch_size, generator, preset.n_rotations)
+        batch = on(random_batch(batch_size, generator, preset.n_rotations), device)
         seconds = train_step_seconds(model, batch, repeats)
         out[f"train_step_s_b{batch_size}"] = seconds
         out[f"train_samples_per_s_b{batch_size}"] = batch_size / seconds
-    one = random_batch(1, generator, preset.n_rotations)
+    one = on(random_batch(1, generator, preset.n_rotations), device)
     with torch.no_grad():
         out["act_s_b1"] = best_seconds(lambda: model.act(one["current"], one["goal"]), repeats)
         goal_features = model.transport.goal_features(one["goal"])
         for batch_size in (9, 27):
-            many = random_batch(batch_size, generator, preset.n_rotations)
+            many = on(random_batch(batch_size, generator, preset.n_rotations), device)
             out[f"place_map_s_b{batch_size}_shared_goal"] = best_seconds(
                 lambda m=many: model.place_map(m["current"], None, m["pick"], goal_features=goal_features),
                 repeats,

@@ -6,14 +6,14 @@ against 27 single calls, and a TVF-Large decision (K=3, depth 3: GCTN on 1, 3, 9
 stands in for k-means, whose cost is negligible).
 
 Prints one JSON object. Usage: python benchmarks/vf.py [--paper] [--presets lite,smoke] [--repeats N]
-[--threads 2] [--nchw].
+[--threads 2] [--nchw] [--device cuda].
 """
 
 from __future__ import annotations
 
 import torch
 
-from common import best_seconds, preset_benchmark_main
+from common import best_seconds, on, preset_benchmark_main
 from tvf.models.backbone import count_conv_macs, count_parameters, set_channels_last
 from tvf.models.gctn import GCTN
 from tvf.models.presets import ModelPreset
@@ -56,11 +56,12 @@ def top_k_places(place_logits: torch.Tensor, k: int) -> tuple[torch.Tensor, torc
     return pixels, bins.float() * (6.283185307179586 / r)
 
 
-def decision_seconds(gctn: GCTN, vf: VisualForesight, repeats: int, k: int = 3, depth: int = 3) -> float:
+def decision_seconds(gctn: GCTN, vf: VisualForesight, repeats: int, k: int = 3, depth: int = 3,
+                     device: torch.device | None = None) -> float:  # fmt: skip
     """Model time of one TVF-Large decision (the tree's GCTN and VF calls, batched per depth)."""
     generator = torch.Generator().manual_seed(1)
-    root = torch.randn(1, 4, 160, 160, generator=generator)
-    goal = torch.randn(1, 4, 160, 160, generator=generator)
+    root = torch.randn(1, 4, 160, 160, generator=generator).to(device)
+    goal = torch.randn(1, 4, 160, 160, generator=generator).to(device)
 
     @torch.no_grad()
     def decide() -> None:
@@ -83,7 +84,8 @@ def decision_seconds(gctn: GCTN, vf: VisualForesight, repeats: int, k: int = 3, 
     return best_seconds(decide, repeats)
 
 
-def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict[str, object]:
+def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool, device: torch.device
+                 ) -> dict[str, object]:  # fmt: skip
     generator = torch.Generator().manual_seed(0)
     torch.manual_seed(0)
     model = set_channels_last(VisualForesight(preset), channels_last)
@@ -93,22 +95,23 @@ def bench_preset(preset: ModelPreset, repeats: int, channels_last: bool) -> dict
         "params": count_parameters(model),
         "gmac": count_conv_macs(model.fcn, (1, ACTION_CHANNELS, side, side)) / 1e9,
     }
+    model.to(device)
     for batch_size in (1, 8):
-        seconds = train_step_seconds(model, random_actions(batch_size, generator), repeats)
+        seconds = train_step_seconds(model, on(random_actions(batch_size, generator), device), repeats)
         out[f"train_step_s_b{batch_size}"] = seconds
         out[f"train_samples_per_s_b{batch_size}"] = batch_size / seconds
     for batch_size in (1, 27, 81):
-        seconds = predict_seconds(model, random_actions(batch_size, generator), repeats)
+        seconds = predict_seconds(model, on(random_actions(batch_size, generator), device), repeats)
         out[f"predict_s_b{batch_size}"] = seconds
         out[f"predict_images_per_s_b{batch_size}"] = batch_size / seconds
-    singles = [random_actions(1, generator) for _ in range(27)]
+    singles = [on(random_actions(1, generator), device) for _ in range(27)]
     seconds = best_seconds(
         lambda: [model.predict_rgbh(s["rgbh"], s["pick"], s["place"], s["yaw"]) for s in singles], repeats
     )
     out["predict_s_27_single_calls"] = seconds
     out["predict_images_per_s_27_single_calls"] = 27 / seconds
-    gctn = set_channels_last(GCTN(preset), channels_last)
-    out["tvf_large_decision_s"] = decision_seconds(gctn, model, repeats)
+    gctn = set_channels_last(GCTN(preset), channels_last).to(device)
+    out["tvf_large_decision_s"] = decision_seconds(gctn, model, repeats, device=device)
     return out
 
 
