@@ -1,5 +1,6 @@
 """The CUDA path end to end (skipped without a GPU): train both smoke models a few steps on CUDA (bf16
-autocast), then one TVF search on CUDA from plain arrays; every output must be finite."""
+autocast), then one TVF search on CUDA from plain arrays (every output must be finite) and a closed-loop
+evaluation there with two environments per worker."""
 
 from __future__ import annotations
 
@@ -27,6 +28,12 @@ def test_smoke_models_train_on_cuda_and_a_tvf_search_runs_there(tmp_path: Path):
     decision = train_and_search(tmp_path, "cuda")
     assert torch.cuda.max_memory_allocated() > 0  # the models ran on the GPU
     assert decision.plan.counts["vf_calls"] >= 1
+    from tvf.evaluate.closed_loop import evaluate
+    from tvf.policies import PolicySpec
+
+    spec = PolicySpec("tvf-small", gctn=str(tmp_path / "gctn"), vf=str(tmp_path / "vf"), device="cuda")
+    summary = evaluate(spec, ["stack-stair"], 2, 1, 1, tmp_path / "eval", envs_per_worker=2)  # one batch
+    assert summary["average"]["episodes"] == 2  # closed loop on the GPU, two environments' trees per call
 
 
 def train_and_search(root: Path, device: str) -> tvf.api.Decision:
