@@ -54,7 +54,7 @@ def files(root: Path) -> dict[str, bytes]:
 FAILING_SEED = 2
 
 
-def scripted_episode(task, split: str, seed: int):
+def scripted_episode(task, split: str, seed: int, sensor: str = "ideal"):
     """The episode job's simulation, replaced: small synthetic episodes; seed 2 fails (failures.jsonl)."""
     name = task if isinstance(task, str) else task.name
     if seed == FAILING_SEED:

@@ -53,7 +53,8 @@ def test_the_spec_turns_choose_the_symmetrised_gctn():
     default, paper = make_policy(PolicySpec("gctn")), make_policy(PolicySpec("gctn", turns=1))
     assert isinstance(default.model, SymmetrizedGCTN) and default.model.turns == 4
     assert type(paper.model) is GCTN
-    assert type(make_policy(PolicySpec("tvf-small")).search.gctn) is GCTN
+    assert make_policy(PolicySpec("tvf-small")).search.gctn.turns == 4  # every method's default now
+    assert type(make_policy(PolicySpec("tvf-small", turns=1)).search.gctn) is GCTN
     assert make_policy(PolicySpec("tvf-large", turns=2)).search.gctn.turns == 2
 
 
