@@ -270,8 +270,9 @@ def test_rule_and_batch_entry_points_pass_every_setting_on(seed: int):
     batch = torch.stack([ring, _ring(24)])
     for b, p in enumerate(place_proposals(batch, 2, alpha=0.02, top_n=30, seed=seed)):
         assert _same(p, state_proposals(batch[b], 2, alpha=0.02, top_n=30, seed=seed))
-    thresholded = place_proposals(_square_and_a_far_pixel(100)[None], 2, alpha=0.995)[0]
-    assert [60, 60] not in thresholded.places.tolist()  # 0.99 of the best: below alpha, not a candidate
+    square = _square_and_a_far_pixel(100)[None]  # the far pixel is 0.99 times as likely as the best
+    assert [60, 60] in place_proposals(square, 2, top_n=101)[0].places.tolist()
+    assert [60, 60] not in place_proposals(square, 2, alpha=0.995, top_n=101)[0].places.tolist()
     nms = place_proposals(batch, 5, rule="nms", radius=3.0)
     for b, p in enumerate(nms):
         assert _same(p, nms_proposals(batch[b], 5, radius=3.0))
