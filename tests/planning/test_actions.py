@@ -44,6 +44,25 @@ def test_the_place_height_ignores_surfaces_outside_the_footprint_and_stays_in_ra
     assert surface_height(height, np.array([0, 0])) == 0.0  # a window clipped at the image corner
 
 
+@pytest.mark.parametrize("direction", [(-1, 0), (1, 0), (0, -1), (0, 1)])
+def test_the_footprint_reaches_half_a_window_on_each_side_and_no_further(direction: tuple[int, int]):
+    half = FOOTPRINT_PX // 2
+    for reach, expected in ((half, 0.085), (half + 1, 0.0)):
+        height = flat_height()
+        height[80 + reach * direction[0], 80 + reach * direction[1]] = 0.085
+        assert surface_height(height, np.array([80, 80])) == pytest.approx(expected), reach
+
+
+def test_a_footprint_clipped_at_the_map_edge_still_covers_the_first_row_and_column():
+    height = flat_height()
+    height[0, 80] = 0.045
+    height[120, 0] = 0.065
+    assert surface_height(height, np.array([3, 80])) == pytest.approx(0.045)
+    assert surface_height(height, np.array([120, 2])) == pytest.approx(0.065)
+    off = np.array([WORKSPACE.shape[0] + FOOTPRINT_PX, WORKSPACE.shape[1] + FOOTPRINT_PX])
+    assert surface_height(flat_height(0.1), off) == 0.0  # a window wholly off the map: the floor
+
+
 @pytest.mark.parametrize(
     "rot_bin, degrees", [(0, 0.0), (3, 30.0), (9, 90.0), (18, -180.0), (27, -90.0), (33, -30.0), (35, -10.0)]
 )

@@ -163,6 +163,9 @@ def test_height_distance_uses_the_reference_normalisation():
     assert height_distance(a, b).item() == pytest.approx(169 * 4.4 / (160 * 160 * 4))
     a[0, :3] = 7.0  # colour does not count
     assert height_distance(a, b).item() == pytest.approx(169 * 4.4 / (160 * 160 * 4))
+    b[0, 3] = 1.5  # a raised goal: the distance is to it, not to the floor
+    assert height_distance(b, b).item() == 0.0
+    assert height_distance(a, b).item() == pytest.approx((169 * 2.9 + (25600 - 169) * 1.5) / (160 * 160 * 4))
 
 
 def test_planner_config_is_validated():
@@ -327,3 +330,237 @@ def test_turns_depth_symmetrises_the_root_only_and_the_plain_gctn_proposes_below
     assert ones == [(n.pick.tolist(), n.place.tolist(), n.rotation) for n in root.nodes if n.depth == 1]
     with pytest.raises(ValueError, match="turns_depth must be None or at least 1"):
         PlannerConfig(turns_depth=0)
+
+
+# Goal world: the toy world, but the GCTN reads a goal id (channel 1, pixel (0, 0) of the goal): the pick
+# column and the rotation channel of every place depend on it, so a state planned against another root's
+# goal gives other nodes. Each call records its rows (states, goal rows) to show which rows shared a call.
+# With ``turns`` the goal features are a symmetrised GCTN's stack (turns, B, C, H, W).
+def goal_image(goal_id: int, target: int) -> torch.Tensor:
+    image = toy_image(target)
+    image[1, 0, 0] = goal_id
+    return image
+
+
+def _goal_ids(goal: torch.Tensor, rows: int) -> list[int]:
+    return [int(x) for x in torch.broadcast_to(goal[:, 1, 0, 0], (rows,))]
+
+
+class GoalToyGctn(ToyGctn):
+    def __init__(self, turns: int = 0) -> None:
+        super().__init__()
+        self.turns = turns
+
+    def goal_features(self, goal):
+        self.calls.append(("goal", goal.shape[0]))
+        return torch.stack([goal] * self.turns) if self.turns else goal
+
+    def pick_logits(self, states, goal):
+        self.calls.append(("pick", states.shape[0], goal.shape[0]))
+        logits = torch.zeros(states.shape[0], SIZE, SIZE)
+        for b, g in enumerate(_goal_ids(goal, states.shape[0])):
+            logits[b, 3, g % SIZE] = 1.0
+        return logits
+
+    def place_maps(self, states, goal, picks, goal_features):
+        assert goal_features.dim() == (5 if self.turns else 4)
+        features = goal_features[-1] if self.turns else goal_features
+        self.calls.append(("place", states.shape[0], features.shape[0]))
+        logits = torch.full((states.shape[0], picks.shape[1], ROTATIONS, SIZE, SIZE), -50.0)
+        for b, g in enumerate(_goal_ids(features, states.shape[0])):
+            for r, c in MOVES.get(state_of(states[b]), {(2, 2): state_of(states[b])}):
+                logits[b, :, (r + c + g) % ROTATIONS, r, c] = 0.0
+        return logits
+
+
+class CountingToyVf(ToyVf):
+    def __init__(self) -> None:
+        self.calls: list[int] = []
+
+    def predict_rgbh(self, states, picks, places, yaws):
+        self.calls.append(states.shape[0])
+        return super().predict_rgbh(states, picks, places, yaws)
+
+
+# Three roots: state 0 towards the goal state 5, state 2 towards state 6 and state 3 (one place only, so
+# a single child per level) towards state 1; goal ids 1, 2, 3.
+ROOTS = torch.stack([toy_image(0), toy_image(2), toy_image(3)])
+GOALS = torch.stack([goal_image(1, 5), goal_image(2, 6), goal_image(3, 1)])
+
+
+def _nodes(plan) -> list[tuple]:
+    return [
+        (n.parent, n.depth, n.pick.tolist(), n.place.tolist(), n.rotation, n.distance, n.score)
+        for n in plan.nodes
+    ]
+
+
+def _goal_search(mix_roots, batched: bool = True, turns: int = 0) -> TreeSearch:
+    config = PlannerConfig(k=2, depth=2, batched=batched)
+    return TreeSearch(GoalToyGctn(turns), CountingToyVf(), config, mix_roots)
+
+
+@pytest.mark.parametrize("turns", [0, 2])
+@pytest.mark.parametrize(
+    ("mix_roots", "batched"), [(False, True), (True, True), (None, True), (False, False)]
+)
+def test_each_root_is_planned_against_its_own_goal_as_a_single_search(mix_roots, batched: bool, turns: int):
+    for n in (2, 3):
+        plans = _goal_search(mix_roots, batched, turns).search_many(ROOTS[:n], GOALS[:n], keep_images=True)
+        for i, plan in enumerate(plans):
+            single = _goal_search(False, batched, turns)
+            alone = single.search(ROOTS[i : i + 1], GOALS[i : i + 1], keep_images=True)
+            assert _nodes(plan) == _nodes(alone)
+            assert plan.best == alone.best and plan.counts == alone.counts
+            assert torch.equal(plan.images, alone.images)
+            assert torch.equal(plan.pick_logits, alone.pick_logits)
+            assert torch.equal(plan.place_logits, alone.place_logits)
+        assert [plan.first.pick.tolist() for plan in plans] == [[3, 1], [3, 2], [3, 3]][:n]  # own goals
+        assert [plan.first.place.tolist() for plan in plans] == [[6, 6], [5, 5], [2, 2]][:n]
+        assert [plan.nodes[plan.best].distance for plan in plans] == [0.0, 0.0, pytest.approx(0.5)][:n]
+        assert [len(plan.nodes) for plan in plans] == [6, 4, 2][:n]
+
+
+PER_ROOT_CALLS = [("goal", 1)] * 3 + [("pick", 1, 1), ("place", 1, 1)] * 3 + [
+    ("pick", 2, 1), ("place", 2, 1), ("pick", 2, 1), ("place", 2, 1), ("pick", 1, 1), ("place", 1, 1)
+]  # fmt: skip
+MIXED_CALLS = [("goal", 3), ("pick", 3, 3), ("place", 3, 3), ("pick", 5, 5), ("place", 5, 5)]
+
+
+@pytest.mark.parametrize("turns", [0, 2])
+def test_rows_share_a_model_call_per_root_unless_mixed(turns: int):
+    """Per root (the CPU default): each call holds one root's rows and its one goal image, the calls of
+    a single search. Mixed: one call per level over every root's rows, each with its own goal."""
+    for mix_roots in (False, None):  # None: the device rule, per root on the CPU
+        search = _goal_search(mix_roots, turns=turns)
+        search.search_many(ROOTS, GOALS)
+        assert search.gctn.calls == PER_ROOT_CALLS and search.vf.calls == [2, 2, 1, 4, 2, 1]
+    two = _goal_search(False, turns=turns)
+    two.search_many(ROOTS[:2], GOALS[:2])
+    assert two.gctn.calls[:2] == [("goal", 1), ("goal", 1)]
+    mixed = _goal_search(True, turns=turns)
+    mixed.search_many(ROOTS, GOALS)
+    assert mixed.gctn.calls == MIXED_CALLS and mixed.vf.calls == [5, 7]
+    one = _goal_search(False, turns=turns)
+    one.search_many(ROOTS[:1], GOALS[:1])
+    assert one.gctn.calls[0] == ("goal", 1)
+
+
+def test_mix_roots_none_follows_the_device_rule(monkeypatch):
+    import tvf.planning.search as search_module
+
+    monkeypatch.setattr(search_module, "mixes_environments", lambda device: True)  # as on a GPU
+    follows = _goal_search(None)
+    follows.search_many(ROOTS, GOALS)
+    assert follows.gctn.calls == MIXED_CALLS
+    explicit = _goal_search(False)  # an explicit setting wins over the device rule
+    explicit.search_many(ROOTS, GOALS)
+    assert explicit.gctn.calls == PER_ROOT_CALLS
+
+
+class MapToyGctn(ToyGctn):
+    """The same place logits (R, H, W) at every state and pick, on a turn layout of ``n_rotations`` bins."""
+
+    def __init__(self, logits: torch.Tensor, n_rotations: int = ROTATIONS) -> None:
+        super().__init__()
+        self.logits, self.preset = logits, SimpleNamespace(n_rotations=n_rotations)
+
+    def place_maps(self, states, goal, picks, goal_features):
+        return self.logits.expand(states.shape[0], picks.shape[1], *self.logits.shape).clone()
+
+
+def _root_proposals(gctn, config: PlannerConfig):
+    plan = TreeSearch(gctn, ToyVf(), config).search(toy_image(0)[None], torch.zeros(1, 4, SIZE, SIZE))
+    return plan.root_proposals
+
+
+def test_the_rotation_tolerance_is_measured_over_the_period_the_channels_cover():
+    """Four channels of a 36-bin turn cover 40 degrees (10 per channel, a 9-fold symmetry's layout): with a
+    tolerance of exactly 10 degrees both neighbours of the best channel are the same placement."""
+    logits = torch.full((4, SIZE, SIZE), -50.0)
+    for channel, value in ((1, 0.0), (2, -0.1), (0, -0.2), (3, -0.3)):
+        logits[channel, 1, 1] = value
+    config = PlannerConfig(k=4, depth=1, proposals="nms", nms_radius=2.0, nms_rotation=10.0)
+    p = _root_proposals(MapToyGctn(logits, n_rotations=36), config)
+    assert p.places.tolist() == [[1, 1], [1, 1]] and p.rotations.tolist() == [1, 3]
+
+
+def _ring(n: int = 40) -> torch.Tensor:
+    logits = torch.full((4, 48, 48), -100.0)
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        logits[i % 4, int(round(24 + 15 * np.sin(a))), int(round(24 + 15 * np.cos(a)))] = -0.001 * i / n
+    return logits
+
+
+@pytest.mark.parametrize(
+    ("settings", "defaults_differ"),
+    [
+        (dict(k=2, alpha=0.02, top_n=30, seed=1), dict(top_n=100)),
+        (dict(k=2, alpha=0.02, top_n=30, seed=3), dict(seed=0)),
+        (dict(k=3, proposals="nms", alpha=0.02, nms_radius=40.0), dict(alpha=0.01)),
+        (dict(k=3, proposals="nms", alpha=0.02, nms_radius=40.0), dict(nms_radius=BLOCK)),
+    ],
+)
+def test_the_root_proposals_use_every_planner_setting(settings: dict, defaults_differ: dict):
+    """The search's proposals are node_proposals with the config's settings; each case checks that the
+    default of one setting would have given other proposals, so a setting dropped on the way is caught."""
+    from tvf.planning.proposals import node_proposals
+
+    logits = _ring()
+    logits[2, 45, 2] = -4.2  # far from the ring, 1.5 % as likely as the best: between alpha 0.01 and 0.02
+    gctn = MapToyGctn(logits)
+
+    def expected(cfg: PlannerConfig):
+        return node_proposals(logits[None], np.array([[3, 4]]), cfg.k, rule=cfg.proposals, alpha=cfg.alpha,
+                              top_n=cfg.top_n, seed=cfg.seed, radius=cfg.nms_radius)  # fmt: skip
+
+    config = PlannerConfig(depth=1, **settings)
+    got, want = _root_proposals(gctn, config), expected(config)
+    assert got.places.tolist() == want.places.tolist() and got.rotations.tolist() == want.rotations.tolist()
+    assert got.picks.tolist() == [[3, 4]] * len(got)
+    other = expected(PlannerConfig(depth=1, **{**settings, **defaults_differ}))
+    assert other.places.tolist() != want.places.tolist()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        (dict(k=0), "planner needs k >= 1 and depth >= 1, got k=0, depth=3"),
+        (dict(depth=0), "planner needs k >= 1 and depth >= 1, got k=3, depth=0"),
+        (dict(proposals="topk"), "unknown proposal rule 'topk'; choose one of kmeans, nms"),
+        (
+            dict(k=2, pick_branches=3),
+            "pick_branches must be between 1 and k = 2 (the picks share the K proposals), got 3",
+        ),
+        (
+            dict(pick_branches=0),
+            "pick_branches must be between 1 and k = 3 (the picks share the K proposals), got 0",
+        ),
+        (dict(nms_radius=0.0), "nms_radius must be a positive number of pixels, got 0.0"),
+        (dict(nms_radius=math.nan), "nms_radius must be a positive number of pixels, got nan"),
+        (dict(nms_rotation=180.0), "nms_rotation must be None or degrees in [0, 180), got 180.0"),
+        (dict(nms_rotation=-0.5), "nms_rotation must be None or degrees in [0, 180), got -0.5"),
+        (dict(turns_depth=0), "turns_depth must be None or at least 1, got 0"),
+        (dict(alpha=0.0), "alpha must be in (0, 1], got 0.0"),
+        (dict(alpha=1.5), "alpha must be in (0, 1], got 1.5"),
+    ],
+)
+def test_config_errors_name_the_setting_and_the_value(changes: dict, message: str):
+    with pytest.raises(ValueError) as error:
+        PlannerConfig(**changes)
+    assert str(error.value) == message
+
+
+def test_config_accepts_the_edges_of_every_range():
+    for edge in (
+        dict(k=1, depth=1),
+        dict(k=2, pick_branches=2),
+        dict(nms_radius=0.5),
+        dict(nms_rotation=0.0),
+        dict(nms_rotation=179.9),
+        dict(turns_depth=1),
+        dict(alpha=1.0),
+    ):
+        config = PlannerConfig(**edge)
+        assert all(getattr(config, key) == value for key, value in edge.items())
