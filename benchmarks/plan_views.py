@@ -38,7 +38,8 @@ def main() -> None:
     planner = load_planner("tvf-large")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "scene"
-        write_views(folder, *env.sensed_views(), env.world.workspace)
+        views, cameras = env.sensed_views()
+        write_views(folder, views, cameras, env.world.workspace)
         ws = env.world.workspace
 
         def read_and_fuse():
@@ -52,7 +53,7 @@ def main() -> None:
     )
     print(json.dumps({
         "task": args.task, "seed": args.seed, "sensor": args.sensor, "threads": args.threads,
-        "cameras": len(env.sensed_views()[0]), "read_views_s": read_s, "read_and_fuse_s": fuse_s,
+        "cameras": len(cameras), "read_views_s": read_s, "read_and_fuse_s": fuse_s,
         "tvf_large_decision_s": decide_s, "fusion_share_of_decision": fuse_s / decide_s,
     }, indent=1))  # fmt: skip
 
