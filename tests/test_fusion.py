@@ -98,3 +98,52 @@ def test_missing_depth_readings_are_holes_not_points():
     assert (color_out[covered] == 90).all()
     filled_color, filled = fusion.fill_holes(color_out, height, covered)
     assert np.allclose(filled, 0.03, atol=1e-6) and filled.shape == WORKSPACE.shape
+
+
+def shadow_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 4 cm block (red) on the table (grey) with its occlusion shadow (3 px behind it) and a dropped
+    pixel on its top left unmeasured; colour, height, covered on a 20 x 20 grid."""
+    height = np.zeros((20, 20), np.float32)
+    color = np.full((20, 20, 3), 120, np.uint8)
+    height[5:12, 5:12], color[5:12, 5:12] = 0.04, (200, 30, 30)
+    covered = np.ones((20, 20), bool)
+    covered[5:12, 12:15] = False  # the shadow: between the block's side and the table behind it
+    covered[8, 8] = False  # a dropped pixel on the top
+    return color, height, covered
+
+
+def test_background_filling_gives_a_shadow_the_surface_behind_it_and_a_dropout_its_surroundings():
+    color, height, covered = shadow_scene()
+    truth_h, truth_c = height.copy(), color.copy()
+    truth_h[5:12, 12:15], truth_c[5:12, 12:15] = 0.0, 120  # what the shadow hides: the table
+    hidden_h, hidden_c = height.copy(), color.copy()
+    hidden_h[~covered], hidden_c[~covered] = 0.5, 7  # values under the holes must not leak
+    filled_c, filled_h = fusion.fill_holes(hidden_c, hidden_h, covered, "background")
+    assert np.array_equal(filled_h, truth_h) and np.array_equal(filled_c, truth_c)
+    near_c, near_h = fusion.fill_holes(hidden_c, hidden_h, covered, "nearest")
+    assert (near_h[5:12, 12] == 0.04).all() and (near_c[5:12, 12] == (200, 30, 30)).all()  # block smeared
+    assert near_h[8, 8] == 0.04 and fusion.fill_holes(hidden_c, hidden_h, covered)[1][5, 12] == 0.04
+
+
+def test_background_filling_takes_the_lowest_rim_surface_and_stays_near_it():
+    height = np.zeros((12, 30), np.float32)
+    color = np.zeros((12, 30, 3), np.uint8)
+    height[:, :10], height[:, 10:20], height[:, 20:] = 0.08, 0.04, 0.0  # tower | block | table
+    color[:, 10:20] = 50
+    covered = np.ones((12, 30), bool)
+    covered[3:8, 10:14] = False  # hidden behind the tower, on the lower block
+    covered[2:4, 25:27] = False  # a 2 x 2 dropout on the table: filled from the table
+    _, filled = fusion.fill_holes(color, height, covered, "background")
+    assert np.allclose(filled[3:8, 10:14], 0.04) and np.allclose(filled[2:4, 25:27], 0.0)
+    tolerance = fusion.BACKGROUND_TOLERANCE
+    tilted = height + np.linspace(0, tolerance / 2, 30, dtype=np.float32)  # a rim within the tolerance
+    _, filled = fusion.fill_holes(color, tilted, covered, "background")
+    assert np.allclose(filled[4:7, 13], tilted[4:7, 14])  # the nearest low rim pixel, not the lowest one
+
+
+def test_unknown_hole_fillings_and_full_coverage():
+    color, height, covered = shadow_scene()
+    with pytest.raises(ValueError, match="unknown hole filling 'blur'; choose one of nearest, background"):
+        fusion.fill_holes(color, height, covered, "blur")
+    everywhere = np.ones_like(covered)
+    assert fusion.fill_holes(color, height, everywhere, "background")[1] is height

@@ -276,3 +276,25 @@ def test_saved_rgbh_images_are_read_and_checked(tmp_path):
         np.savez(tmp_path / "bad.npz", **arrays)
         with pytest.raises(TvfError, match=re.escape(match)):
             views.read_rgbh(tmp_path / "bad.npz")
+
+
+def test_holes_are_filled_as_the_simulator_fills_them_unless_told(rig):
+    assert (
+        views.resolve_hole_fill("auto", 1) == "background" and views.resolve_hole_fill("auto", 3) == "nearest"
+    )
+    assert views.resolve_hole_fill("nearest", 1) == "nearest"
+    with pytest.raises(
+        TvfError, match="unknown hole filling 'blur'; choose one of auto, nearest, background"
+    ):
+        views.resolve_hole_fill("blur", 2)
+    both, one = views.read_views(rig), views.read_views(rig)[:1]
+    assert views.fuse_views(both, WORKSPACE, rig).hole_fill == "nearest"
+    assert views.load_rgbh(rig, WORKSPACE, "--views", "background").hole_fill == "background"
+    depth = iio.imread(rig / "a.depth.png")
+    depth[220:260, 300:360] = 0  # no reading there: a hole in the fused map
+    iio.imwrite(rig / "a.depth.png", depth)
+    one = views.read_views(rig)[:1]
+    single = views.fuse_views(one, WORKSPACE, rig)
+    assert single.hole_fill == "background" and single.coverage < 0.99
+    told = views.fuse_views(one, WORKSPACE, rig, "nearest")
+    assert told.hole_fill == "nearest" and np.allclose(told.height, single.height)  # a flat scene: the same

@@ -84,16 +84,17 @@ def load_planner(
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches, turns_depth; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images;
-    ``turns`` (1, 2 or 4) averages the GCTN over quarter turns of the scene (default: the method's).
+    pick_branches, turns_depth, tie_band; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined
+    images; ``turns`` (1, 2 or 4) averages the GCTN over quarter turns of the scene (default: the method's).
     Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
-    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches", "turns_depth"})
+    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches", "turns_depth", "tie_band"})
     if unknown:
         raise TvfError(
-            f"unknown planner option {unknown[0]!r}; choose k, depth, proposals, pick_branches or turns_depth"
+            f"unknown planner option {unknown[0]!r}; choose k, depth, proposals, pick_branches, turns_depth "
+            "or tie_band"
         )
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")

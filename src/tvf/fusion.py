@@ -4,7 +4,9 @@ A view is a colour image and a depth image of one calibrated camera (:class:`Pin
 pixel is back-projected along its ray to a point in the robot base frame, the points are binned into
 the workspace grid of :mod:`tvf.geometry` (floor rule, half-open bounds), and the views are fused: per
 pixel the height is the highest point any view saw; the colour is the mean over the views whose own top
-point reaches that height. :func:`fill_holes` gives pixels no view saw their nearest neighbour's values.
+point reaches that height. :func:`fill_holes` gives pixels no view saw values from measured ones:
+``nearest`` (the nearest measured pixel's) or ``background`` (the lowest surface on the hole's rim, which
+is what a camera's occlusion shadow hides; the fill for one-camera rigs).
 
 Camera conventions (those of ROS ``sensor_msgs/CameraInfo`` and REP 103/104 optical frames):
 
@@ -37,6 +39,8 @@ from tvf.geometry import WORKSPACE, Workspace, world_to_pixel
 Z_TOLERANCE = 0.002
 #: Views whose own top point is within this of the fused max contribute to a pixel's colour.
 COLOR_HEIGHT_TOLERANCE = 0.005
+#: ``background`` filling: rim pixels this close to the rim's lowest height count as the background.
+BACKGROUND_TOLERANCE = 0.005
 #: Fixed-point steps and the residual (normalised image units) of the distortion inversion.
 UNDISTORT_STEPS = 100
 UNDISTORT_TOLERANCE = 1e-10
@@ -242,12 +246,67 @@ def fuse_with_coverage(
     return color_u8, top.astype(np.float32), covered
 
 
-def fill_holes(color: np.ndarray, height: np.ndarray, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fill_nearest(color: np.ndarray, height: np.ndarray, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Give each uncovered pixel the colour and height of its nearest covered pixel."""
-    if covered.all() or not covered.any():
-        return color, height
     _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
     return color[ri, ci], height[ri, ci]
+
+
+def fill_background(
+    color: np.ndarray, height: np.ndarray, covered: np.ndarray, tolerance: float = BACKGROUND_TOLERANCE
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Fill each hole (4-connected) from the lowest surface on its rim: its nearest rim pixel within
+    ``tolerance`` of the rim's lowest height.
+
+    A camera looking at an angle misses what an object hides behind it; the hidden pixels border the
+    occluder (high) and the surface behind it (low), and the low one is what lies there. Nearest-pixel
+    filling would extend the occluder into its shadow instead. A one-pixel hole takes its lowest covered
+    4-neighbour.
+    """
+    labels, n = ndimage.label(~covered)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    color, height = _fill_single_pixels(color, height, covered, (labels > 0) & (sizes[labels] == 1))
+    for index, box in enumerate(ndimage.find_objects(labels), start=1):
+        if sizes[index] == 1:
+            continue
+        box = tuple(slice(max(s.start - 1, 0), s.stop + 1) for s in box)
+        hole = labels[box] == index
+        rim = ndimage.binary_dilation(hole) & covered[box]
+        h, c = height[box], color[box]
+        low = rim & (h <= h[rim].min() + tolerance)
+        _, (ri, ci) = ndimage.distance_transform_edt(~low, return_indices=True)
+        h[hole], c[hole] = h[ri, ci][hole], c[ri, ci][hole]
+    return color, height
+
+
+def _fill_single_pixels(
+    color: np.ndarray, height: np.ndarray, covered: np.ndarray, single: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`fill_background` for one-pixel holes, at once: each takes its lowest covered 4-neighbour."""
+    rows, cols = np.nonzero(single)
+    padded = np.pad(np.where(covered, height, np.inf), 1, constant_values=np.inf)
+    steps = np.array([(-1, 0), (1, 0), (0, -1), (0, 1)])
+    nr, nc = rows[:, None] + steps[:, 0], cols[:, None] + steps[:, 1]  # (n, 4), unpadded indices
+    best = np.argmin(padded[nr + 1, nc + 1], axis=1)
+    r, c = nr[np.arange(len(rows)), best], nc[np.arange(len(rows)), best]
+    color, height = color.copy(), height.copy()
+    color[rows, cols], height[rows, cols] = color[r, c], height[r, c]
+    return color, height
+
+
+HOLE_FILLS = {"nearest": fill_nearest, "background": fill_background}
+"""The hole fillings by name (:func:`fill_holes`)."""
+
+
+def fill_holes(
+    color: np.ndarray, height: np.ndarray, covered: np.ndarray, mode: str = "nearest"
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Give the pixels no view covered values from covered ones, by ``mode`` (:data:`HOLE_FILLS`)."""
+    if mode not in HOLE_FILLS:
+        raise ValueError(f"unknown hole filling {mode!r}; choose one of {', '.join(HOLE_FILLS)}")
+    if covered.all() or not covered.any():
+        return color, height
+    return HOLE_FILLS[mode](color, height, covered)
 
 
 def fuse(
@@ -255,7 +314,9 @@ def fuse(
     cameras: Sequence[PinholeCamera],
     workspace: Workspace = WORKSPACE,
     fill: bool = False,
+    hole_fill: str = "nearest",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fuse RGB-D ``views`` [(rgb, depth), ...] -> colour uint8 (rows, cols, 3), height float32."""
+    """Fuse RGB-D ``views`` [(rgb, depth), ...] -> colour uint8 (rows, cols, 3), height float32; with
+    ``fill``, holes filled by ``hole_fill`` (:data:`HOLE_FILLS`)."""
     color, height, covered = fuse_with_coverage(views, cameras, workspace)
-    return fill_holes(color, height, covered) if fill else (color, height)
+    return fill_holes(color, height, covered, hole_fill) if fill else (color, height)

@@ -11,9 +11,11 @@ A views folder (docs/real-robot.md) holds, per camera ``NAME``:
 
 and optionally ``workspace.yaml`` (or ``.json``): the workspace bounds and pixel size in the base frame
 (defaults: :data:`tvf.geometry.WORKSPACE`). The views are fused by :mod:`tvf.fusion`, the simulator's
-own fusion, and holes are filled as the simulator fills them. A saved RGB-H image is an ``.npz`` with
-``color`` (uint8 rows x cols x 3) and ``height`` (float32 metres above the table), what ``tvf render``
-writes. Every bad file is a one-line :class:`TvfError` naming the file and the field.
+own fusion, and holes are filled as the simulator fills them (``auto``: from the nearest measured pixel
+with several views, from the lowest surface on a hole's rim with one, :func:`resolve_hole_fill`). A
+saved RGB-H image is an ``.npz`` with ``color`` (uint8 rows x cols x 3) and ``height`` (float32 metres
+above the table), what ``tvf render`` writes. Every bad file is a one-line :class:`TvfError` naming the
+file and the field.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 import yaml
 
 from tvf.errors import TvfError
-from tvf.fusion import PinholeCamera, View, fill_holes, fuse_with_coverage, pixel_rays
+from tvf.fusion import HOLE_FILLS, PinholeCamera, View, fill_holes, fuse_with_coverage, pixel_rays
 from tvf.geometry import WORKSPACE, Workspace
 from tvf.io import atomic_write_bytes
 
@@ -81,7 +83,9 @@ class Rgbh:
     n_views: int = 0
     """0 for a saved RGB-H image."""
     coverage: float = 1.0
-    """The fraction of pixels some view measured (the rest is filled from the nearest measured pixel)."""
+    """The fraction of pixels some view measured (the rest is filled by ``hole_fill``)."""
+    hole_fill: str | None = None
+    """How the holes were filled (:data:`tvf.fusion.HOLE_FILLS`); None for a saved RGB-H image."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -394,8 +398,25 @@ def read_views(folder: str | Path) -> list[ViewFiles]:
     return out
 
 
-def fuse_views(views: Sequence[ViewFiles], workspace: Workspace, source: Path) -> Rgbh:
-    """The views fused into the top-down image by :mod:`tvf.fusion`, holes filled (as the simulator does)."""
+HOLE_FILL_CHOICES = ("auto", *HOLE_FILLS)
+
+
+def resolve_hole_fill(mode: str, n_views: int) -> str:
+    """``auto`` -> the simulator's rule for a rig of ``n_views`` cameras: ``background`` for one camera
+    (its occlusion shadows), ``nearest`` for more; any other mode as it is."""
+    if mode not in HOLE_FILL_CHOICES:
+        raise TvfError(f"unknown hole filling {mode!r}; choose one of {', '.join(HOLE_FILL_CHOICES)}")
+    if mode == "auto":
+        return "background" if n_views == 1 else "nearest"
+    return mode
+
+
+def fuse_views(
+    views: Sequence[ViewFiles], workspace: Workspace, source: Path, hole_fill: str = "auto"
+) -> Rgbh:  # fmt: skip
+    """The views fused into the top-down image by :mod:`tvf.fusion`, holes filled by ``hole_fill``
+    (:func:`resolve_hole_fill`; ``auto`` fills them as the simulator does)."""
+    fill = resolve_hole_fill(hole_fill, len(views))
     color, height, covered = fuse_with_coverage([(v.color, v.depth) for v in views],
                                                 [v.camera for v in views], workspace)  # fmt: skip
     if not covered.any():
@@ -405,8 +426,8 @@ def fuse_views(views: Sequence[ViewFiles], workspace: Workspace, source: Path) -
             f"y [{ws.y_min}, {ws.y_max}), z [{ws.z_min}, {ws.z_max}) m; check T_base_camera (the pose of the "
             "optical frame in the robot base frame), depth_scale and workspace.yaml"
         )
-    color, height = fill_holes(color, height, covered)
-    return Rgbh(color, height, source, len(views), float(covered.mean()))
+    color, height = fill_holes(color, height, covered, fill)
+    return Rgbh(color, height, source, len(views), float(covered.mean()), fill)
 
 
 def read_rgbh(path: str | Path, workspace: Workspace = WORKSPACE) -> Rgbh:
@@ -434,11 +455,12 @@ def read_rgbh(path: str | Path, workspace: Workspace = WORKSPACE) -> Rgbh:
     return Rgbh(color, height.astype(np.float32), path)
 
 
-def load_rgbh(path: str | Path, workspace: Workspace, flag: str) -> Rgbh:
-    """The top-down image of a views folder (fused) or of a saved ``.npz`` RGB-H image."""
+def load_rgbh(path: str | Path, workspace: Workspace, flag: str, hole_fill: str = "auto") -> Rgbh:
+    """The top-down image of a views folder (fused, holes filled by ``hole_fill``) or of a saved ``.npz``
+    RGB-H image."""
     path = Path(path)
     if path.is_dir():
-        return fuse_views(read_views(path), workspace, path)
+        return fuse_views(read_views(path), workspace, path, hole_fill)
     if path.suffix == ".npz" and path.is_file():
         return read_rgbh(path, workspace)
     raise TvfError(f"{flag} {path}: give a folder of views or an .npz RGB-H image (docs/real-robot.md)")

@@ -119,6 +119,7 @@ def test_plan_on_exported_views_takes_the_simulators_action(capsys, rigs, tmp_pa
         np.testing.assert_allclose(T[:2, :2], [[c, -s], [s, c]], atol=1e-12)
     assert abs(record["pick"]["z"] - want.pick[2]) < 3e-3  # heights from the fused files, within mm
     assert record["scene"]["views"] == 3 and "robot base frame" in record["convention"]
+    assert record["scene"]["hole_fill"] == record["goal"]["hole_fill"] == "nearest"  # three cameras: auto
     assert (tmp_path / "decision.png").read_bytes()[:4] == b"\x89PNG"
     saved = load_rgbh(tmp_path / "scene.npz", WORKSPACE, "--views")
     assert np.array_equal(saved.height, load_rgbh(rig / "scene", WORKSPACE, "--views").height)

@@ -79,6 +79,25 @@ def test_symmetrised_act_is_the_argmax_of_its_averaged_maps(generator: torch.Gen
     assert ((rot >= 0) & (rot < QUARTER.n_rotations)).all()
 
 
+def test_the_symmetrised_loss_is_invariant_to_turns_and_trains_the_wrapped_gctn(generator) -> None:
+    plain = GCTN(QUARTER, seed=7)
+    model = SymmetrizedGCTN(plain, 4)
+    current, goal, picks = _scene(generator)
+    goal = goal.expand(2, -1, -1, -1)
+    pick, place = picks[:, 0], picks[:, 1]
+    bins = torch.tensor([3, 20])
+    loss = model.loss(current, goal, pick, place, bins)
+    turn = lambda x: torch.rot90(x, 1, dims=(-2, -1))  # noqa: E731
+    moved = [torch.as_tensor(quarter_turn_pixels(p.numpy(), 1, 160)) for p in (pick, place)]
+    turned = model.loss(turn(current), turn(goal), *moved, bins)  # the same sample, turned
+    torch.testing.assert_close(turned["total"], loss["total"], atol=1e-4, rtol=1e-5)
+    plain_loss = plain.loss(current, goal, pick, place, bins)
+    assert not torch.isclose(plain_loss["total"], loss["total"])
+    loss["total"].backward()
+    grads = [p.grad for p in plain.parameters()]
+    assert all(g is not None for g in grads) and any(g.abs().sum() > 0 for g in grads)
+
+
 def test_one_turn_is_the_model_itself_and_bad_turns_are_refused() -> None:
     plain = GCTN(QUARTER)
     assert symmetrized(plain, 1) is plain

@@ -10,7 +10,7 @@ import torch
 from tvf.models.gctn import GCTN
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
-from tvf.planning.search import PlannerConfig, TreeSearch, height_distance
+from tvf.planning.search import Node, PlannerConfig, TreeSearch, best_node, height_distance
 
 BLOCK = 13.0
 
@@ -544,6 +544,8 @@ def test_the_root_proposals_use_every_planner_setting(settings: dict, defaults_d
         (dict(turns_depth=0), "turns_depth must be None or at least 1, got 0"),
         (dict(alpha=0.0), "alpha must be in (0, 1], got 0.0"),
         (dict(alpha=1.5), "alpha must be in (0, 1], got 1.5"),
+        (dict(tie_band=-1e-4), "tie_band must be a score difference >= 0, got -0.0001"),
+        (dict(tie_band=math.inf), "tie_band must be a score difference >= 0, got inf"),
     ],
 )
 def test_config_errors_name_the_setting_and_the_value(changes: dict, message: str):
@@ -561,6 +563,40 @@ def test_config_accepts_the_edges_of_every_range():
         dict(nms_rotation=179.9),
         dict(turns_depth=1),
         dict(alpha=1.0),
+        dict(tie_band=0.0),
     ):
         config = PlannerConfig(**edge)
         assert all(getattr(config, key) == value for key, value in edge.items())
+
+
+def tree(scores: dict[int, tuple[int, float]]) -> list[Node]:
+    """Nodes in breadth-first order from {index: (parent, score)}."""
+    zero = np.zeros(2, int)
+    nodes = []
+    for i, (parent, score) in sorted(scores.items()):
+        depth = 1 if parent < 0 else nodes[parent].depth + 1
+        nodes.append(Node(i, parent, depth, zero, zero, 0, 1.0 - score, score))
+    return nodes
+
+
+def test_the_tie_band_gives_near_ties_to_the_first_root_action_and_keeps_its_best_path():
+    # roots 0, 1, 2 (proposal order); root 1's grandchild 7 is the best node by 0.0004
+    nodes = tree({0: (-1, 0.950), 1: (-1, 0.940), 2: (-1, 0.930), 3: (0, 0.9600), 4: (0, 0.9550),
+                  5: (1, 0.9580), 6: (2, 0.9000), 7: (5, 0.9604), 8: (3, 0.9590)})  # fmt: skip
+    assert best_node(nodes) == best_node(nodes, 0.0) == 7  # the paper's rule: the best node
+    assert best_node(nodes, 0.0001) == 7  # root 0's best (0.9600) is 0.0004 under: not a tie
+    assert best_node(nodes, 0.0005) == 3  # a tie: root 0 comes first; its own best node
+    assert best_node(nodes, 0.1) == 3  # every root ties: still root 0's best, not its first child
+    equal = tree({0: (-1, 0.9), 1: (-1, 0.95), 2: (0, 0.95)})
+    assert best_node(equal) == 1  # exact ties: the shallowest, as before
+
+
+def test_the_search_applies_its_tie_band():
+    def first(band: float):
+        search = TreeSearch(ToyGctn(), ToyVf(), PlannerConfig(k=2, depth=1, tie_band=band))
+        plan = _plan(search)
+        assert [n.place.tolist() for n in plan.nodes] == [[6, 6], [1, 1]]  # the proposal order
+        return plan.first.place.tolist()
+
+    # depth 1: the first proposal (6, 6) scores 0.70, the second (1, 1) 0.90
+    assert first(0.0) == first(0.1) == [1, 1] and first(0.25) == [6, 6]

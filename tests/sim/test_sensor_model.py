@@ -167,6 +167,7 @@ def test_calibration_errors_have_the_configured_size_and_draw_rule():
         ({"cameras": "two"}, "cameras must be one of three, one, not 'two'"),
         ({"edge_width": 0}, "edge_width must be an integer >= 1"),
         ({"calib_draw": "sometimes"}, "calib_draw must be 'episode' or 'fixed'"),
+        ({"hole_fill": "blur"}, "hole_fill must be one of nearest, background, not 'blur'"),
     ],
 )
 def test_bad_values_are_one_line_errors(kwargs, words):
@@ -178,3 +179,9 @@ def test_bad_values_are_one_line_errors(kwargs, words):
 def test_an_unknown_preset_names_the_choices():
     with pytest.raises(TvfError, match="unknown sensor 'd999'; choose one of ideal, one, d415"):
         get_sensor("d999")
+
+
+def test_one_camera_presets_fill_holes_from_the_background_and_three_camera_ones_from_the_nearest():
+    fills = {name: (cfg.cameras, cfg.hole_fill) for name, cfg in SENSORS.items()}
+    assert all(fill == ("background" if rig == "one" else "nearest") for rig, fill in fills.values())
+    assert fills["d415-one"] == ("one", "background") and SensorConfig().hole_fill == "nearest"

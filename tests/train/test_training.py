@@ -202,3 +202,30 @@ def test_changed_pixel_loss_is_recorded_resumes_only_with_itself_and_rejects_bad
     for bad in (-1.0, float("nan")):
         with pytest.raises(TrainError, match="--vf-changed-weight"):
             train(replace(cfg, vf_changed_weight=bad), vf_job(cfg))
+
+
+def test_symmetrised_training_starts_from_given_weights_and_is_recorded(data_root, tmp_path):
+    base = config(data_root, tmp_path / "base", steps=2)
+    train(base, gctn_job(base))
+    tuned = config(data_root, tmp_path / "tuned", steps=2, turns=4, init=tmp_path / "base")
+    job = gctn_job(tuned)
+    start = load_checkpoint(tmp_path / "base" / "checkpoints" / "last.pt", "gctn").model
+    assert all(torch.equal(job.model.state_dict()[k], start[k]) for k in start)  # --init loaded them
+    batch = job.train_batch(np.random.default_rng(0), None)
+    symmetrised, plain = job.loss(batch)[0], gctn_job(replace(tuned, turns=1)).loss(batch)[0]
+    assert not torch.isclose(symmetrised, plain)  # the same weights and batch, the averaged maps' loss
+    val = train(tuned, job)
+    saved = json.loads((tmp_path / "tuned" / "config.json").read_text())
+    assert saved["turns"] == 4 and saved["init"]["step"] == 2 and len(saved["init"]["sha256"]) == 64
+    assert "turns" not in json.loads((tmp_path / "base" / "config.json").read_text())
+    assert {"loss", "pick_acc", "place_acc"} <= set(val)
+    assert load_checkpoint(tmp_path / "tuned" / "checkpoints" / "last.pt", "gctn").step == 2  # a plain GCTN
+    other = replace(tuned, resume=True, turns=2, steps=3)
+    with pytest.raises(RunError, match="turns"):
+        train(other, gctn_job(other))
+    with pytest.raises(TrainError, match="--turns is a GCTN flag"):
+        vf_job(replace(tuned, out=tmp_path / "vf"))
+    with pytest.raises(CheckpointError, match="expected 'gctn'"):
+        vf = config(data_root, tmp_path / "vf", steps=2)
+        train(vf, vf_job(vf))
+        gctn_job(replace(tuned, out=tmp_path / "again", init=tmp_path / "vf"))

@@ -43,6 +43,10 @@ class PlannerFlags:
     turns_depth: int | None = None
     """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
     the plain GCTN (1 = the root's proposals only)."""
+    tie_band: float | None = None
+    """TVF: root actions whose best imagined outcome scores within TIE_BAND of the best are ties, and the
+    GCTN's order decides (default 0: the best score wins, the paper's). 0.001 is about a fifteenth of a
+    misplaced block; it keeps decisions stable under sub-millimetre depth changes (docs/planner.md)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -51,7 +55,7 @@ class PlannerFlags:
 
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
-            self.turns, self.turns_depth, self.alpha, self.nms_radius,
+            self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band,
         )  # fmt: skip
 
 

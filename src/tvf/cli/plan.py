@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -79,7 +80,8 @@ def pose_record(pose: np.ndarray, pixel: tuple[int, int]) -> dict:
 
 
 def image_record(image) -> dict:
-    return {"path": str(image.source), "views": image.n_views, "coverage": round(image.coverage, 6)}
+    return {"path": str(image.source), "views": image.n_views, "coverage": round(image.coverage, 6),
+            "hole_fill": image.hole_fill}  # fmt: skip
 
 
 def decision_record(decision, poses: np.ndarray, method: str, scene, goal, ws: Workspace) -> dict:
@@ -139,6 +141,13 @@ class PlanCmd:
     VIEWS/workspace.yaml when the views are a folder that has one, else today's workspace."""
     turns: int | None = None
     """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's)."""
+    tie_band: float | None = None
+    """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
+    (default 0, the paper's; 0.001 keeps decisions stable under sub-millimetre depth noise)."""
+    hole_fill: Literal["auto", "nearest", "background"] = "auto"
+    """auto | nearest | background: how pixels no camera measured are filled. nearest: the nearest
+    measured pixel's values; background: the lowest surface on the hole's rim (what a camera's occlusion
+    shadow hides); auto: background with one camera, nearest with more (as the simulator)."""
     device: str = "auto"
     """auto | cpu | cuda: where the models run."""
 
@@ -172,9 +181,11 @@ class PlanCmd:
         ws = self.resolve_workspace()
         check_grid(ws, str(self.workspace or self.views))
         self.check_goal_workspace(ws)
-        scene, goal = load_rgbh(self.views, ws, "--views"), load_rgbh(self.goal, ws, "--goal")
+        scene = load_rgbh(self.views, ws, "--views", self.hole_fill)
+        goal = load_rgbh(self.goal, ws, "--goal", self.hole_fill)
+        search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
-                               keep_images=True, turns=self.turns)  # fmt: skip
+                               keep_images=True, turns=self.turns, **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)
         for name, pose in (("pick", poses[0]), ("place", poses[1])):

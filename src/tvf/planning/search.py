@@ -12,7 +12,9 @@ all their children through **one** batched VF call; :meth:`TreeSearch.search_man
 although only height is compared: the reference's constant, kept because it sets the trade-off against
 the discount (one misplaced block moves D by ~0.015, the discount costs ~0.01 per level). The executed
 action is the first one on the path to the best node (ties: the shallowest, then the earliest), and
-the tree is rebuilt from the real observation after every step (receding horizon).
+the tree is rebuilt from the real observation after every step (receding horizon). With a ``tie_band``
+> 0, root actions whose subtrees score within the band of the best are ties, and the GCTN's order of the
+root proposals decides between them (:func:`best_node`).
 """
 
 from __future__ import annotations
@@ -66,6 +68,10 @@ class PlannerConfig:
     turns_depth: int | None = None
     """With a symmetrised GCTN (``--turns``, :mod:`tvf.models.symmetry`): the levels, from the root, whose
     proposals come from the symmetrised maps; deeper levels use the plain GCTN (cheaper). None: all."""
+    tie_band: float = 0.0
+    """Root actions whose best node scores within this of the tree's best are ties, decided by the
+    order of the root proposals (the GCTN's); 0: the best node's action, the paper's rule. One
+    misplaced block moves a score by about 0.015; sub-millimetre sensor changes move it by about 1e-4."""
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
@@ -85,6 +91,8 @@ class PlannerConfig:
             raise ValueError(f"turns_depth must be None or at least 1, got {self.turns_depth}")
         if not 0 < self.alpha <= 1:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
+        if not (math.isfinite(self.tie_band) and self.tie_band >= 0):
+            raise ValueError(f"tie_band must be a score difference >= 0, got {self.tie_band}")
 
 
 @dataclass
@@ -130,6 +138,22 @@ class Plan:
     def first(self) -> Node:
         """The action to execute now."""
         return self.path[0]
+
+
+def best_node(nodes: list[Node], tie_band: float = 0.0) -> int:
+    """The node whose path is executed (``nodes`` in breadth-first order, so the root actions come first,
+    in proposal order). Band 0: the first maximum (the shallowest, then the earliest). Otherwise the
+    first root action whose subtree's best score is within ``tie_band`` of the best, and its best node."""
+    scores = np.array([node.score for node in nodes])
+    if tie_band <= 0:
+        return int(np.argmax(scores))
+    root = np.empty(len(nodes), dtype=int)
+    for i, node in enumerate(nodes):
+        root[i] = i if node.parent < 0 else root[node.parent]
+    value = np.full(len(nodes), -np.inf)
+    np.maximum.at(value, root, scores)
+    chosen = int(np.flatnonzero(value >= scores.max() - tie_band)[0])
+    return int(np.flatnonzero(root == chosen)[np.argmax(scores[root == chosen])])
 
 
 def height_distance(images: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
@@ -277,7 +301,7 @@ class TreeSearch:
                 for r in range(n):
                     images[r].append(frontier.states[torch.as_tensor(frontier.roots == r)])
         for plan, kept in zip(plans, images, strict=True):
-            plan.best = int(np.argmax([node.score for node in plan.nodes]))  # first maximum: the shallowest
+            plan.best = best_node(plan.nodes, cfg.tie_band)
             plan.images = torch.cat(kept) if keep_images else None
         return plans
 

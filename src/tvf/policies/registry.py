@@ -41,12 +41,14 @@ class PolicySpec:
     """TVF: place pixels at least ALPHA times the best are candidates."""
     nms_radius: float | None = None
     """TVF: pixels between NMS proposals and between branched picks."""
+    tie_band: float | None = None
+    """TVF: root actions scoring within this of the best are ties, decided by the GCTN's order."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
         fields = {"k": self.k, "depth": self.depth, "proposals": self.proposals,
                   "pick_branches": self.pick_branches, "turns_depth": self.turns_depth, "alpha": self.alpha,
-                  "nms_radius": self.nms_radius}  # fmt: skip
+                  "nms_radius": self.nms_radius, "tie_band": self.tie_band}  # fmt: skip
         return {name: value for name, value in fields.items() if value is not None}
 
 

@@ -190,7 +190,7 @@ class TvfEnv(gym.Env):
         color, height, covered = fuse_with_coverage(views, cameras, self.world.workspace)
         self.coverage[kind] = float(covered.mean())
         if self.config.sim.observation.fill_holes:
-            color, height = fill_holes(color, height, covered)
+            color, height = fill_holes(color, height, covered, self.sensor.hole_fill)
         return color, height
 
     def observe(self) -> dict[str, np.ndarray]:

@@ -13,7 +13,9 @@ rendered view and before the fusion (:mod:`tvf.fusion`), as on a real robot:
 * **calibration errors**: the fusion back-projects with a perturbed pose of each camera (translation of
   ``calib_translation`` metres in a random direction, rotation of ``calib_rotation_deg`` about a random
   axis through the camera's centre) while the world renders from the true one. ``calib_draw = "episode"``
-  draws a new error per episode; ``"fixed"`` draws it once, the same for every episode (one rig's error).
+  draws a new error per episode; ``"fixed"`` draws it once, the same for every episode (one rig's error);
+* **the hole filling** of the fusion (``hole_fill``): ``nearest`` for three cameras, ``background`` for
+  one, whose occlusion shadows hide the surface behind each block (:func:`tvf.fusion.fill_background`).
 
 Every draw comes from a ``numpy`` Generator seeded by ``SeedSequence([episode seed, stream, step,
 camera])`` (:func:`view_rng`; stream 0 the observations, 1 the goal, 2 the calibration), never from a
@@ -40,7 +42,7 @@ import numpy as np
 from scipy import ndimage
 
 from tvf.errors import TvfError
-from tvf.fusion import PinholeCamera, View
+from tvf.fusion import HOLE_FILLS, PinholeCamera, View
 from tvf.sim.camera import RIGS, Rig
 
 OBSERVATION, GOAL, CALIBRATION = 0, 1, 2
@@ -84,6 +86,10 @@ class SensorConfig:
     """Angle (degrees) of each camera's orientation error, about a random axis."""
     calib_draw: Literal["episode", "fixed"] = "episode"
     """``episode``: a new calibration error per episode seed; ``fixed``: the same error in every episode."""
+    hole_fill: Literal["nearest", "background"] = "nearest"
+    """How the fusion fills what no camera measured (:data:`tvf.fusion.HOLE_FILLS`): ``nearest`` (the
+    three-camera rig, as the stored datasets were made) or ``background`` (one camera: the lowest surface
+    on a hole's rim, what an occlusion shadow hides)."""
 
     def __post_init__(self) -> None:
         if self.cameras not in RIGS:
@@ -105,6 +111,9 @@ class SensorConfig:
         if self.calib_draw not in ("episode", "fixed"):
             raise SensorError(f"sensor {self.name!r}: calib_draw must be 'episode' or 'fixed', "
                               f"not {self.calib_draw!r}")  # fmt: skip
+        if self.hole_fill not in HOLE_FILLS:
+            raise SensorError(f"sensor {self.name!r}: hole_fill must be one of {', '.join(HOLE_FILLS)}, "
+                              f"not {self.hole_fill!r}")  # fmt: skip
 
     @property
     def corrupts_views(self) -> bool:
@@ -240,16 +249,17 @@ def calibrated_cameras(
 
 _D415 = dict(sigma_1m=0.00145, edge_dropout=0.5, dropout=0.002, depth_unit=0.001, color_sigma=2.0)
 _CALIB = dict(calib_translation=0.003, calib_rotation_deg=1.0)
+_ONE = dict(cameras="one", hole_fill="background")
 
 SENSORS: dict[str, SensorConfig] = {
     s.name: s
     for s in (
         SensorConfig("ideal"),
-        SensorConfig("one", cameras="one"),
+        SensorConfig("one", **_ONE),
         SensorConfig("d415", **_D415),
-        SensorConfig("d415-one", cameras="one", **_D415),
-        SensorConfig("d415-one-calib", cameras="one", **_D415, **_CALIB),
-        SensorConfig("d435-one", cameras="one", **{**_D415, "sigma_1m": 0.0036}),
+        SensorConfig("d415-one", **_ONE, **_D415),
+        SensorConfig("d415-one-calib", **_ONE, **_D415, **_CALIB),
+        SensorConfig("d435-one", **_ONE, **{**_D415, "sigma_1m": 0.0036}),
     )
 }
 """The named sensors: ``ideal`` (perfect, the default), ``one`` (one perfect camera), ``d415`` (three

@@ -45,6 +45,13 @@ class TrainConfig:
     """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
     reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss"); default: the preset's
     recipe."""
+    turns: int | None = None
+    """GCTN only: train the GCTN's maps averaged over 1, 2 or 4 quarter turns of the scene, the maps that
+    `--turns` plans with (tvf.models.symmetry): its weights then learn under the exactly equivariant loss;
+    each step costs about TURNS plain steps; default 1 (the paper's)."""
+    init: Path | None = None
+    """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
+    file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250

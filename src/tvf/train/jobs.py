@@ -14,14 +14,17 @@ import torch
 from tvf.data.dataset import demo_subset, open_dataset
 from tvf.data.format import DataError, Episode, episode_checksum
 from tvf.data.samplers import GctnSampler, VfSampler
+from tvf.models.checkpoint import load_checkpoint, trained_checkpoint
 from tvf.models.gctn import GCTN
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.latent import LatentDynamics
 from tvf.models.presets import get_preset
+from tvf.models.symmetry import check_turns, symmetrized
 from tvf.models.vf import VisualForesight, changed_pixel_weights
 from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
 from tvf.train.pictures import gctn_pictures, vf_pictures
 from tvf.train.trainer import TrainConfig, TrainError, TrainingJob, fingerprint, schedule_config
+from tvf.weights import sha256_file
 
 PICK_TOLERANCE_PX = 6
 """A predicted pick within this many pixels of the label lies on the same 4 cm block (12.8 px)."""
@@ -94,10 +97,12 @@ def _base_config(kind: str, cfg: TrainConfig, model, data: dict[str, Any]) -> di
 
 
 def _job(
-    kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, pictures, **val_kwargs
+    kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, pictures, judged=None, **val_kwargs
 ) -> TrainingJob:
     """A job from a model, its sampler class, a batch loss, a validation metric function and the pictures
-    of one validation sample (the middle one of the fixed samples)."""
+    of one validation sample (the middle one of the fixed samples); ``judged`` is the module validated
+    and drawn (default ``model``, the one trained and saved)."""
+    judged = model if judged is None else judged
     episodes, val_eps, data = _load_episodes(cfg)
     r = model.preset.n_rotations  # the samplers' rotation bins are the model's
     sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r)
@@ -107,26 +112,50 @@ def _job(
         val_items = _fixed_items(val_sampler, cfg.val_samples)
 
         def validate() -> dict[str, float]:
-            return metrics(model, val_items, next(model.parameters()).device)
+            return metrics(judged, val_items, next(model.parameters()).device)
 
         def draw() -> dict[str, np.ndarray]:
-            return pictures(model, val_items[len(val_items) // 2], next(model.parameters()).device)
+            return pictures(judged, val_items[len(val_items) // 2], next(model.parameters()).device)
 
-    return TrainingJob(kind, model, partial(sampler.sample, cfg.batch), loss, validate,
-                _base_config(kind, cfg, model, data), draw)  # fmt: skip
+    job = TrainingJob(kind, model, partial(sampler.sample, cfg.batch), loss, validate,
+                      _base_config(kind, cfg, model, data), draw)  # fmt: skip
+    if cfg.init is not None:
+        job.config["init"] = _initialise(model, cfg.init, kind)
+    return job
+
+
+def _initialise(model, source, kind: str) -> dict[str, Any]:
+    """Load ``source``'s weights (a run, .pt or .safetensors of ``kind`` and the model's preset) into
+    ``model``; what the run's config records of it: their content, so a resumed run must start from the
+    same weights wherever they lie."""
+    path = trained_checkpoint(source, kind)
+    ckpt = load_checkpoint(path, kind, model=model)
+    return {"step": ckpt.step, "sha256": sha256_file(path)}
+
+
+def _refuse_turns(cfg: TrainConfig, model: str) -> None:
+    if cfg.turns not in (None, 1):
+        raise TrainError(f"--turns is a GCTN flag (its maps averaged over quarter turns); the {model} has no "
+                         "such maps: leave it out")  # fmt: skip
 
 
 def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
-    """Training job for the goal-conditioned Transporter."""
+    """Training job for the goal-conditioned Transporter (with ``turns`` > 1: its symmetrised maps, which
+    are also what is validated; the plain GCTN inside is what is saved)."""
     model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
+    turns = check_turns(cfg.turns or 1)
+    trained = symmetrized(model, turns)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])
         goal = to_rgbh(batch["goal_color"], batch["goal_height"])
-        losses = model.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
+        losses = trained.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    return _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures)
+    job = _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures, judged=trained)
+    if turns > 1:  # part of what a resumed run must match; absent: the plain GCTN's loss
+        job.config["turns"] = turns
+    return job
 
 
 @torch.no_grad()
@@ -158,6 +187,7 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
 
 def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
+    _refuse_turns(cfg, "visual-foresight model")
     preset = get_preset(cfg.preset)
     if cfg.vf_head is not None:
         preset = preset.replace(vf_head=cfg.vf_head)
@@ -208,6 +238,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     ``--vf-changed-weight`` weighs its next-image loss as the VF's."""
     if cfg.vf_head is not None:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
+    _refuse_turns(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:

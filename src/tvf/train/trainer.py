@@ -54,7 +54,9 @@ class TrainError(TvfError):
 
 
 SCHEDULES = ("constant", "cosine")
-RESUME_MATCH = ("kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss")
+RESUME_MATCH = (
+    "kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss", "turns", "init",
+)  # fmt: skip
 """What a resumed run must share with the run it continues."""
 
 
