@@ -145,5 +145,6 @@ def test_unknown_hole_fillings_and_full_coverage():
     color, height, covered = shadow_scene()
     with pytest.raises(ValueError, match="unknown hole filling 'blur'; choose one of nearest, background"):
         fusion.fill_holes(color, height, covered, "blur")
-    everywhere = np.ones_like(covered)
-    assert fusion.fill_holes(color, height, everywhere, "background")[1] is height
+    everywhere, nowhere = np.ones_like(covered), np.zeros_like(covered)
+    for fill in fusion.HOLE_FILLS.values():  # nothing to fill, or nothing to fill from: unchanged
+        assert fill(color, height, everywhere)[1] is height and fill(color, height, nowhere)[1] is height

@@ -248,6 +248,8 @@ def fuse_with_coverage(
 
 def fill_nearest(color: np.ndarray, height: np.ndarray, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Give each uncovered pixel the colour and height of its nearest covered pixel."""
+    if covered.all() or not covered.any():
+        return color, height
     _, (ri, ci) = ndimage.distance_transform_edt(~covered, return_indices=True)
     return color[ri, ci], height[ri, ci]
 
@@ -263,6 +265,8 @@ def fill_background(
     filling would extend the occluder into its shadow instead. A one-pixel hole takes its lowest covered
     4-neighbour.
     """
+    if covered.all() or not covered.any():
+        return color, height
     labels, n = ndimage.label(~covered)
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     color, height = _fill_single_pixels(color, height, covered, (labels > 0) & (sizes[labels] == 1))
@@ -304,8 +308,6 @@ def fill_holes(
     """Give the pixels no view covered values from covered ones, by ``mode`` (:data:`HOLE_FILLS`)."""
     if mode not in HOLE_FILLS:
         raise ValueError(f"unknown hole filling {mode!r}; choose one of {', '.join(HOLE_FILLS)}")
-    if covered.all() or not covered.any():
-        return color, height
     return HOLE_FILLS[mode](color, height, covered)
 
 

@@ -46,6 +46,9 @@ def test_a_tvf_decision_is_the_policys_and_keeps_its_plan(scene):
     np.testing.assert_array_equal(decision.as_array(), policy.act(obs, goal))
     assert decision.plan is not None and decision.plan.counts["vf_calls"] >= 1
     assert repr(planner) == "Planner('tvf-small')"
+    banded = tvf.load_planner("tvf-small", k=2, tie_band=0.5)  # every root action ties: the first one wins
+    first = banded.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+    assert first.plan.first.index == 0 and banded._policy.search.config.tie_band == 0.5
 
 
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):
@@ -67,6 +70,8 @@ def test_bad_arrays_and_arguments_are_one_line_errors(scene):
         (dict(method="oracle"), "unknown planner 'oracle'"),
         (dict(method="tvf-large", beam=3), "unknown planner option 'beam'"),
         (dict(method="gctn", k=2), "gctn does not search"),
+        (dict(method="gctn", tie_band=0.001), "gctn does not search"),
+        (dict(method="tvf-large", tie_band=-1.0), "tie_band must be a score difference >= 0.*--tie-band"),
         (dict(method="tvf-large", gctn="/nowhere/run"), "nowhere"),
     ):
         with pytest.raises(TvfError, match=match):

@@ -197,8 +197,8 @@ SLOW_DECISIONS = 20
 
 
 TVF_NEAR_TIES = pytest.mark.xfail(
-    reason="measured once: TVF-L takes the same action on 14 of 20 (70 %; 85 % with 0.1 mm depth units): its "
-    "search flips between near-equal scores on sub-millimetre height changes (issue 13, item 5)",
+    reason="measured: TVF-L takes the same action on 14-15 of 20 (70-75 %; 85 % with 0.1 mm depth units): "
+    "its search flips between near-equal scores on sub-millimetre height changes (issue 13, item 5)",
     strict=False,
 )
 

@@ -1,5 +1,7 @@
 """`tvf demos --sensor`: demonstrations recorded through a noisy rig, one sensor per split folder."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -21,6 +23,11 @@ def test_demos_are_recorded_through_the_sensor_and_folders_do_not_mix(tmp_path):
         env.close()
     assert np.array_equal(episode.height[0], obs["height"]) and np.array_equal(episode.color[0], obs["color"])
     assert episode.attrs["sensor"]["name"] == "d415-one" and len(episode.attrs["observation"]["cameras"]) == 1
+    assert episode.attrs["sensor"]["hole_fill"] == "background"
+    assert json.loads((plan.folder / SENSOR_FILE).read_text()) == {
+        "sensor": "d415-one",
+        "hole_fill": "background",
+    }
     with pytest.raises(DataError, match="recorded through the 'd415-one' sensor; pass --sensor d415-one"):
         generate(GenerationPlan(("stack-tower",), "test", 2, tmp_path), progress=False)
     with pytest.raises(DataError, match="recorded through the 'ideal' sensor"):
@@ -29,3 +36,11 @@ def test_demos_are_recorded_through_the_sensor_and_folders_do_not_mix(tmp_path):
         generate(
             GenerationPlan(("stack-tower",), "test", 1, tmp_path / "ideal", sensor="d415"), progress=False
         )
+
+
+def test_a_folder_of_the_older_one_camera_filling_is_not_resumed(tmp_path):
+    plan = GenerationPlan(("stack-tower",), "test", 1, tmp_path, sensor="one")
+    plan.folder.mkdir(parents=True)
+    (plan.folder / SENSOR_FILE).write_text(json.dumps({"sensor": "one"}))  # as the previous version wrote it
+    with pytest.raises(DataError, match="whose holes were filled 'nearest' .* fills them 'background'"):
+        generate(plan, progress=False)

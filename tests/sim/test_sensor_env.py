@@ -102,10 +102,16 @@ def test_sensor_factories_pickle_and_are_named_by_env(tmp_path):
         TvfEnv(TASK, sensor="nope")
 
 
-def test_an_evaluation_records_the_sensor(tmp_path):
+def test_an_evaluation_records_the_sensor_and_its_hole_filling(tmp_path):
     evaluate(PolicySpec("oracle"), [TASK], 1, 1, 1, tmp_path, envs=SimEnvFactory(sensor="one"))
-    assert json.loads((tmp_path / "eval.json").read_text())["sensor"] == "one"
-    assert "sensor" not in json.loads((_eval_ideal(tmp_path / "ideal") / "eval.json").read_text())
+    meta = json.loads((tmp_path / "eval.json").read_text())
+    assert meta["sensor"] == "one" and meta["hole_fill"] == "background"
+    ideal = json.loads((_eval_ideal(tmp_path / "ideal") / "eval.json").read_text())
+    assert "sensor" not in ideal and "hole_fill" not in ideal
+    del meta["hole_fill"]  # what the previous version recorded for the same preset
+    (tmp_path / "eval.json").write_text(json.dumps(meta))
+    with pytest.raises(TvfError, match="other hole_fill"):
+        evaluate(PolicySpec("oracle"), [TASK], 1, 1, 1, tmp_path, envs=SimEnvFactory(sensor="one"))
 
 
 def _eval_ideal(out):
@@ -124,3 +130,19 @@ def test_tvf_render_shows_a_noisy_observation(tmp_path, capsys):
         capsys, "render", "--task", "stack-tower", "--sensor", "d999", "--out", str(tmp_path / "x")
     )
     assert code == 2 and "unknown sensor 'd999'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_one_camera_files_fuse_as_the_simulator_fills_them(tmp_path):
+    """What `tvf render --export-views` writes of a one-camera rig, fused by `tvf plan`'s default rule,
+    is the simulator's own observation within the depth PNG's millimetre rounding."""
+    from tvf.views import load_rgbh, write_views
+
+    env = TvfEnv(get_task("stack-twin-tower"), sensor="one")
+    obs, _ = env.reset(seed=1)
+    write_views(tmp_path / "scene", *env.sensed_views())
+    env.close()
+    auto = load_rgbh(tmp_path / "scene", env.world.workspace, "--views")
+    nearest = load_rgbh(tmp_path / "scene", env.world.workspace, "--views", "nearest")
+    assert auto.n_views == 1 and auto.hole_fill == "background" and nearest.hole_fill == "nearest"
+    error, other = (float(np.abs(i.height - obs["height"]).mean()) for i in (auto, nearest))
+    assert error < 0.001 and error < 0.5 * other  # the simulator's rule (measured: 0.18 mm against 0.60)

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from tvf.data.format import Episode, episode_name, write_episode
+from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE
 from tvf.models.checkpoint import CheckpointError, load_checkpoint
 from tvf.runs import RunError
@@ -220,9 +221,20 @@ def test_symmetrised_training_starts_from_given_weights_and_is_recorded(data_roo
     assert "turns" not in json.loads((tmp_path / "base" / "config.json").read_text())
     assert {"loss", "pick_acc", "place_acc"} <= set(val)
     assert load_checkpoint(tmp_path / "tuned" / "checkpoints" / "last.pt", "gctn").step == 2  # a plain GCTN
-    other = replace(tuned, resume=True, turns=2, steps=3)
+    with pytest.raises(TvfError, match="--turns must be 1, 2 or 4"):
+        gctn_job(replace(tuned, out=tmp_path / "zero", turns=0))
+    train(
+        replace(base, resume=True, steps=4), gctn_job(replace(base, resume=True, steps=4))
+    )  # --init moved on
+    longer = replace(tuned, resume=True, steps=3)
+    train(longer, gctn_job(longer))  # resumes from its own checkpoint, recording the weights it began with
+    assert json.loads((tmp_path / "tuned" / "config.json").read_text())["init"] == saved["init"]
+    assert load_checkpoint(tmp_path / "tuned" / "checkpoints" / "last.pt", "gctn").step == 3
+    other = replace(tuned, resume=True, turns=2, steps=4)
     with pytest.raises(RunError, match="turns"):
         train(other, gctn_job(other))
+    with pytest.raises(RunError, match="does not exist"):
+        gctn_job(replace(tuned, out=tmp_path / "new", init=tmp_path / "nowhere.pt"))
     with pytest.raises(TrainError, match="--turns is a GCTN flag"):
         vf_job(replace(tuned, out=tmp_path / "vf"))
     with pytest.raises(CheckpointError, match="expected 'gctn'"):

@@ -46,7 +46,7 @@ class PlannerFlags:
     tie_band: float | None = None
     """TVF: root actions whose best imagined outcome scores within TIE_BAND of the best are ties, and the
     GCTN's order decides (default 0: the best score wins, the paper's). 0.001 is about a fifteenth of a
-    misplaced block; it keeps decisions stable under sub-millimetre depth changes (docs/planner.md)."""
+    misplaced block (docs/planner.md; measured in docs/real-robot.md)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip

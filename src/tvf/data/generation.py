@@ -476,8 +476,9 @@ def generate(
 
 
 def check_sensor(folder: Path, sensor: str) -> None:
-    """Refuse to add episodes of one sensor to a split folder of another; name a new folder's sensor."""
-    get_sensor(sensor)
+    """Refuse to add episodes of one sensor (or one hole filling) to a split folder of another; name a new
+    folder's sensor."""
+    fill = get_sensor(sensor).hole_fill
     path = folder / SENSOR_FILE
     recorded = read_sensor(folder)
     if recorded != sensor and (path.exists() or episode_files(folder)):
@@ -485,8 +486,23 @@ def check_sensor(folder: Path, sensor: str) -> None:
             f"{folder} holds demonstrations recorded through the {recorded!r} sensor; pass --sensor "
             f"{recorded} to resume it, or choose another --out for {sensor!r}"
         )
+    recorded_fill = _recorded_fill(path) if path.exists() else "nearest"
+    if recorded_fill != fill and (path.exists() or episode_files(folder)):
+        raise DataError(
+            f"{folder} holds {sensor!r} demonstrations whose holes were filled {recorded_fill!r} (an older "
+            f"tvf); this version fills them {fill!r}: choose another --out, or delete the folder"
+        )
     if sensor != "ideal" and not path.exists():
-        atomic_write_json(path, {"sensor": sensor})
+        record = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
+        atomic_write_json(path, record)
+
+
+def _recorded_fill(path: Path) -> str:
+    """The hole filling a ``sensor.json`` names (``nearest`` when it names none: the older folders)."""
+    try:
+        return str(json.loads(path.read_text()).get("hole_fill", "nearest"))
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(f"{path}: unreadable ({exc!r}); it names the sensor of the folder's demos") from None
 
 
 def read_sensor(folder: Path) -> str:

@@ -21,6 +21,7 @@ from tvf.parallel import check_backend, run_jobs
 from tvf.policies import PolicySpec, get_method
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
+from tvf.sim.sensors import get_sensor
 from tvf.tasks import BUILTIN, Task
 from tvf.weights import sha256_file
 
@@ -106,6 +107,9 @@ def evaluate(
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"
     elif not envs.ideal:  # the simulator through another sensor (tvf.sim.sensors): recorded likewise
         meta["sensor"] = envs.describe()
+        fill = get_sensor(envs.sensor).hole_fill
+        if fill != "nearest":  # presets changed their filling once: a resume must not mix the two
+            meta["hole_fill"] = fill
     meta_path = out / "eval.json"
     if meta_path.exists() and not restart:
         changed = _changed_settings(meta_path, meta)

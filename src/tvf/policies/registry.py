@@ -144,7 +144,7 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
     except ValueError as exc:
         raise TvfError(
             f"{exc.args[0]}; fix the planner flags "
-            "(--k, --depth, --proposals, --pick-branches, --alpha, --nms-radius, --turns-depth)"
+            "(--k, --depth, --proposals, --pick-branches, --alpha, --nms-radius, --turns-depth, --tie-band)"
         ) from None
 
 

@@ -21,6 +21,7 @@ from tvf.models.latent import LatentDynamics
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.models.vf import VisualForesight, changed_pixel_weights
+from tvf.runs import RunDir
 from tvf.tasks import BLOCK_SYMMETRY, TaskTable, load_tasks
 from tvf.train.pictures import gctn_pictures, vf_pictures
 from tvf.train.trainer import TrainConfig, TrainError, TrainingJob, fingerprint, schedule_config
@@ -103,6 +104,7 @@ def _job(
     of one validation sample (the middle one of the fixed samples); ``judged`` is the module validated
     and drawn (default ``model``, the one trained and saved)."""
     judged = model if judged is None else judged
+    init = _init_source(cfg, kind)  # before the data: a bad --init fails at once
     episodes, val_eps, data = _load_episodes(cfg)
     r = model.preset.n_rotations  # the samplers' rotation bins are the model's
     sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r)
@@ -119,16 +121,24 @@ def _job(
 
     job = TrainingJob(kind, model, partial(sampler.sample, cfg.batch), loss, validate,
                       _base_config(kind, cfg, model, data), draw)  # fmt: skip
-    if cfg.init is not None:
-        job.config["init"] = _initialise(model, cfg.init, kind)
+    if init is not None:
+        job.config["init"] = _initialise(model, init, kind)
+    elif cfg.init is not None:  # resumed: its own checkpoint holds the weights; keep the record it began with
+        job.config["init"] = RunDir(cfg.out).read_config().get("init")
     return job
 
 
-def _initialise(model, source, kind: str) -> dict[str, Any]:
-    """Load ``source``'s weights (a run, .pt or .safetensors of ``kind`` and the model's preset) into
-    ``model``; what the run's config records of it: their content, so a resumed run must start from the
-    same weights wherever they lie."""
-    path = trained_checkpoint(source, kind)
+def _init_source(cfg: TrainConfig, kind: str) -> Path | None:
+    """The checkpoint ``--init`` names (a run folder: its last checkpoint), or None without ``--init`` and
+    when the run is resumed from a checkpoint of its own (which then replaces the weights anyway)."""
+    if cfg.init is None or (cfg.resume and RunDir(cfg.out).last.exists()):
+        return None
+    return trained_checkpoint(cfg.init, kind)
+
+
+def _initialise(model, path: Path, kind: str) -> dict[str, Any]:
+    """Load the weights of ``path`` (of ``kind`` and the model's preset) into ``model``; what the run's
+    config records of them: the step and the file's SHA-256."""
     ckpt = load_checkpoint(path, kind, model=model)
     return {"step": ckpt.step, "sha256": sha256_file(path)}
 
@@ -143,7 +153,7 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     """Training job for the goal-conditioned Transporter (with ``turns`` > 1: its symmetrised maps, which
     are also what is validated; the plain GCTN inside is what is saved)."""
     model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
-    turns = check_turns(cfg.turns or 1)
+    turns = check_turns(1 if cfg.turns is None else cfg.turns)
     trained = symmetrized(model, turns)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
