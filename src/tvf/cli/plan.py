@@ -104,9 +104,8 @@ def decision_record(decision, poses: np.ndarray, method: str, scene, goal, ws: W
 def picture_lines(record: dict) -> list[str]:
     """The text over decision.png: where the images came from, the decision in pixels and metres."""
     pick, place, scene = record["pick"], record["place"], record["scene"]
-    measured = (
-        f"{scene['views']} views, {scene['coverage']:.1%} of pixels measured" if scene["views"] else "RGB-H"
-    )
+    views = f"{scene['views']} view{'s' if scene['views'] != 1 else ''}"
+    measured = f"{views}, {scene['coverage']:.1%} of pixels measured" if scene["views"] else "RGB-H"
     (pr, pc), (qr, qc) = pick["pixel"], place["pixel"]
     at = {k: f"({p['x']:.3f}, {p['y']:.3f}, {p['z']:.3f})" for k, p in (("pick", pick), ("place", place))}
     return [
