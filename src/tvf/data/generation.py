@@ -480,39 +480,34 @@ def check_sensor(folder: Path, sensor: str) -> None:
     folder's sensor."""
     fill = get_sensor(sensor).hole_fill
     path = folder / SENSOR_FILE
-    recorded = read_sensor(folder)
-    if recorded != sensor and (path.exists() or episode_files(folder)):
+    record = _sensor_record(folder)
+    recorded, recorded_fill = record["sensor"], record["hole_fill"]
+    occupied = path.exists() or bool(episode_files(folder))
+    if recorded != sensor and occupied:
         raise DataError(
             f"{folder} holds demonstrations recorded through the {recorded!r} sensor; pass --sensor "
             f"{recorded} to resume it, or choose another --out for {sensor!r}"
         )
-    recorded_fill = _recorded_fill(path) if path.exists() else "nearest"
-    if recorded_fill != fill and (path.exists() or episode_files(folder)):
+    if recorded_fill != fill and occupied:
         raise DataError(
             f"{folder} holds {sensor!r} demonstrations whose holes were filled {recorded_fill!r} (an older "
             f"tvf); this version fills them {fill!r}: choose another --out, or delete the folder"
         )
     if sensor != "ideal" and not path.exists():
-        record = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
-        atomic_write_json(path, record)
+        named = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
+        atomic_write_json(path, named)
 
 
-def _recorded_fill(path: Path) -> str:
-    """The hole filling a ``sensor.json`` names (``nearest`` when it names none: the older folders)."""
-    try:
-        return str(json.loads(path.read_text()).get("hole_fill", "nearest"))
-    except (OSError, ValueError, AttributeError) as exc:
-        raise DataError(f"{path}: unreadable ({exc!r}); it names the sensor of the folder's demos") from None
-
-
-def read_sensor(folder: Path) -> str:
-    """The sensor a split folder was recorded through: its ``sensor.json``, or ``ideal``."""
+def _sensor_record(folder: Path) -> dict[str, str]:
+    """What a split folder was recorded through, from its ``sensor.json``: {"sensor", "hole_fill"};
+    ``ideal`` without one, ``nearest`` when it names no filling (the older folders)."""
     path = Path(folder) / SENSOR_FILE
     if not path.exists():
-        return "ideal"
+        return {"sensor": "ideal", "hole_fill": "nearest"}
     try:
-        return str(json.loads(path.read_text())["sensor"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        doc = json.loads(path.read_text())
+        return {"sensor": str(doc["sensor"]), "hole_fill": str(doc.get("hole_fill", "nearest"))}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise DataError(f"{path}: unreadable ({exc!r}); it names the sensor of the folder's demos") from None
 
 

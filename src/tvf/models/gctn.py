@@ -447,11 +447,7 @@ class GCTN(nn.Module):
         rot_bins: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
         """Training losses; the transport is evaluated at the labelled pick (teacher forcing)."""
-        b, shape = current.shape[0], current.shape[-2:]
-        pick = as_pixels(pick_pixels, b, shape).to(current.device)
-        place = as_pixels(place_pixels, b, shape).to(current.device)
-        pick_logits, place_logits = self(current, goal, pick)
-        return gctn_loss(pick_logits, place_logits, pick, place, torch.as_tensor(rot_bins).to(current.device))
+        return labelled_loss(self, current, goal, pick_pixels, place_pixels, rot_bins)
 
     @torch.no_grad()
     def act(
@@ -463,6 +459,19 @@ class GCTN(nn.Module):
         logits, "place": (B, R, H, W) logits}.
         """
         return greedy_action(self, current, goal)
+
+
+def labelled_loss(
+    model, current: torch.Tensor, goal: torch.Tensor, pick_pixels: torch.Tensor, place_pixels: torch.Tensor,
+    rot_bins: torch.Tensor,
+) -> dict[str, torch.Tensor]:  # fmt: skip
+    """:meth:`GCTN.loss` for any model with ``pick_logits`` and ``place_map``: :func:`gctn_loss` of its maps
+    against the labels, the transport evaluated at the labelled pick (teacher forcing)."""
+    b, shape = current.shape[0], current.shape[-2:]
+    pick = as_pixels(pick_pixels, b, shape).to(current.device)
+    place = as_pixels(place_pixels, b, shape).to(current.device)
+    pick_logits, place_logits = model.pick_logits(current, goal), model.place_map(current, goal, pick)
+    return gctn_loss(pick_logits, place_logits, pick, place, torch.as_tensor(rot_bins).to(current.device))
 
 
 def greedy_action(model, current: torch.Tensor, goal: torch.Tensor):

@@ -16,7 +16,7 @@ from torch import nn
 
 from tvf.errors import TvfError
 from tvf.geometry import quarter_turn_pixels
-from tvf.models.gctn import GCTN, gctn_loss, greedy_action
+from tvf.models.gctn import GCTN, greedy_action, labelled_loss
 from tvf.models.images import as_pixels
 
 TURNS = (1, 2, 4)
@@ -113,11 +113,7 @@ class SymmetrizedGCTN(nn.Module):
         place_pixels: torch.Tensor, rot_bins: torch.Tensor,
     ) -> dict[str, torch.Tensor]:  # fmt: skip
         """:meth:`GCTN.loss` of the symmetrised maps (gradients reach the wrapped GCTN through every turn)."""
-        b, shape = current.shape[0], current.shape[-2:]
-        pick = as_pixels(pick_pixels, b, shape).to(current.device)
-        place = as_pixels(place_pixels, b, shape).to(current.device)
-        pick_logits, place_logits = self.pick_logits(current, goal), self.place_map(current, goal, pick)
-        return gctn_loss(pick_logits, place_logits, pick, place, torch.as_tensor(rot_bins).to(current.device))
+        return labelled_loss(self, current, goal, pick_pixels, place_pixels, rot_bins)
 
     @torch.no_grad()
     def act(self, current: torch.Tensor, goal: torch.Tensor):
