@@ -4,7 +4,11 @@ files), and count the decisions that agree (the same pick and place pixel and ro
 
 For TVF methods it also reports how many decisions have the same root proposals on both sides, and the
 agreement under each tie band (``PlannerConfig.tie_band``: root actions within the band of the best are
-ties, decided by the proposal order) with how many in-simulator decisions the band changes.
+ties, decided by the proposal order) with how many in-simulator decisions the band changes. Where the two
+sides disagree (band 0) it says what the difference costs: whether the files' action is physically the
+same (pick within 6 px, place within 3 px, rotation within one bin: the GCTN accuracy tolerances), and
+how far below the simulator's best the simulator's own search scored the files' action (``score_gaps``;
+None where the simulator's search did not propose it).
 
 Prints one JSON object. Usage: python benchmarks/round_trip.py [--method tvf-large] [--decisions 20]
 [--seed-start 1000001] [--bands 0,0.0001,0.001,0.003]. Decision i is unseen task i mod 8 with seed
@@ -40,6 +44,30 @@ def first_action(plan: Plan, band: float) -> tuple:
     return action_key(node)
 
 
+def root_values(plan: Plan) -> dict[tuple, float]:
+    """Each root action's best score in its subtree."""
+    root, value = {}, {}
+    for i, node in enumerate(plan.nodes):
+        root[i] = i if node.parent < 0 else root[node.parent]
+        key = action_key(plan.nodes[root[i]])
+        value[key] = max(value.get(key, -np.inf), node.score)
+    return value
+
+
+def physically_same(a: tuple, b: tuple, n_rotations: int = 36) -> bool:
+    """The same block picked and put at the same place: pick within 6 px, place within 3 px, the
+    rotation within one bin modulo a quarter turn (a block's symmetry)."""
+    (pick_a, place_a, rot_a), (pick_b, place_b, rot_b) = a, b
+    period = n_rotations // 4
+    turn = (rot_a - rot_b) % period
+
+    def moved(a, b) -> int:
+        return int(np.abs(np.subtract(a, b)).max())
+
+    close = moved(pick_a, pick_b) <= 6 and moved(place_a, place_b) <= 3
+    return bool(close and min(turn, period - turn) <= 1)
+
+
 def roots(plan: Plan) -> list[tuple]:
     return sorted(action_key(n) for n in plan.nodes if n.depth == 1)
 
@@ -51,6 +79,7 @@ def main() -> None:
     parser.add_argument("--seed-start", type=int, default=1_000_001)
     parser.add_argument("--bands", default="0,0.0001,0.001,0.003")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--depth-scale", type=float, default=0.001, help="metres per unit of the depth PNGs")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     bands = [float(b) for b in args.bands.split(",")]
@@ -59,7 +88,7 @@ def main() -> None:
     searches = args.method != "gctn"
     agree = {b: 0 for b in bands}
     changed = {b: 0 for b in bands}
-    same_roots, plain, maes = 0, 0, []
+    same_roots, plain, maes, same_block, gaps = 0, 0, [], 0, []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.decisions):
             task, seed = tasks[i % len(tasks)], args.seed_start + 2 * (i // len(tasks))
@@ -67,8 +96,8 @@ def main() -> None:
             try:
                 obs, info = env.reset(seed=seed)
                 rig = Path(tmp) / f"{task.name}-{seed}"
-                write_views(rig / "scene", *env.world.views())
-                write_views(rig / "goal", *env.goal_views)
+                write_views(rig / "scene", *env.world.views(), depth_scale=args.depth_scale)
+                write_views(rig / "goal", *env.goal_views, depth_scale=args.depth_scale)
             finally:
                 env.close()
             goal, ws = info["goal"], folder_workspace(rig / "scene")
@@ -81,6 +110,11 @@ def main() -> None:
                     outside.pick_pixel, outside.place_pixel, outside.rotation_bin)  # fmt: skip
                 continue
             same_roots += roots(inside.plan) == roots(outside.plan)
+            mine, theirs = first_action(inside.plan, 0.0), first_action(outside.plan, 0.0)
+            same_block += physically_same(mine, theirs)
+            if mine != theirs:
+                values = root_values(inside.plan)
+                gaps.append(None if theirs not in values else round(values[mine] - values[theirs], 6))
             for b in bands:
                 agree[b] += first_action(inside.plan, b) == first_action(outside.plan, b)
                 changed[b] += first_action(inside.plan, b) != first_action(inside.plan, 0.0)
@@ -88,11 +122,14 @@ def main() -> None:
         "method": args.method,
         "decisions": args.decisions,
         "seed_start": args.seed_start,
+        "depth_scale": args.depth_scale,
         "height_mae_mm": round(1000 * float(np.mean(maes)), 3),
         "agree": {str(b): n for b, n in agree.items()} if searches else plain,
     }
     if searches:
         out["same_root_proposals"] = same_roots
+        out["physically_same"] = same_block
+        out["score_gaps"] = gaps
         out["changed_by_band"] = {str(b): n for b, n in changed.items()}
     print(json.dumps(out, indent=2))
 

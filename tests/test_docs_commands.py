@@ -73,6 +73,7 @@ def smoke(argv: list[str]) -> list[str]:
     return out
 
 
+@pytest.mark.slow  # demos, both trainings and an evaluation at smoke size: about 40 s on 2 cores
 def test_the_data_and_training_chains_run_at_smoke_size(tmp_path, monkeypatch, capsys):
     """docs/data.md then docs/training.md, in order, in one folder: each command reads what the ones
     before it wrote (the first commands of training.md once wrote a nested split the next could not read)."""

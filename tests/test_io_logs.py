@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tvf.errors import DiskFullError
-from tvf.io import append_jsonl, as_disk_full, atomic_path, read_jsonl
+from tvf.io import append_jsonl, as_disk_full, atomic_path, output_dir, read_jsonl
 
 TORN = b'{"task": "stack-stair", "se'
 
@@ -172,3 +172,18 @@ def test_each_log_reader_ignores_a_torn_last_line(tmp_path, capsys):
     _torn(tmp_path / "demos" / "failures.jsonl", [{"task": "stack-stair", "seed": 2}, {"seed": 4}])
     assert list(read_failures(tmp_path / "demos")) == [("stack-stair", 2)]
     assert capsys.readouterr().err.count("ignored a torn last line") == 3
+
+
+def test_an_output_folder_made_for_a_failed_setup_is_removed_only_while_empty(tmp_path):
+    with pytest.raises(ValueError), output_dir(tmp_path / "a" / "b"):
+        assert (tmp_path / "a" / "b").is_dir()
+        raise ValueError("setup failed")
+    assert not (tmp_path / "a").exists()
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(ValueError), output_dir(tmp_path / "kept" / "run") as run:
+        (run / "config.json").write_text("{}")
+        raise ValueError("failed after writing")
+    assert (tmp_path / "kept" / "run" / "config.json").exists()  # nothing written is ever deleted
+    with output_dir(tmp_path / "ok") as run:
+        pass
+    assert run.is_dir()

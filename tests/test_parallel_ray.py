@@ -91,6 +91,7 @@ def _files(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow  # episodes made twice: about 15 s
 def test_ray_demos_are_the_same_bytes_as_the_pools(local_ray, tmp_path):
     """A real oracle dataset (one task, two test-split episodes) from 2 pool workers and from 2 Ray workers
     (`tvf demos --backend ray`), where the Ray workers send the files' bytes back and this process writes
@@ -105,6 +106,7 @@ def test_ray_demos_are_the_same_bytes_as_the_pools(local_ray, tmp_path):
     assert made["ray"] == made["local"]
 
 
+@pytest.mark.slow  # an evaluation run twice
 def test_ray_evaluation_writes_the_same_episodes_jsonl(local_ray, tmp_path):
     """The library with one process against `tvf eval --backend ray`, also with --envs-per-worker 2 (the
     instance above is reused)."""

@@ -18,7 +18,7 @@ import numpy as np
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE, world_to_pixel, yaw_to_bin
 from tvf.planning.search import Plan
-from tvf.policies.registry import PLANNER_METHODS, PolicySpec, get_method, make_policy
+from tvf.policies.registry import PLANNER_METHODS, PLANNER_OPTIONS, PolicySpec, get_method, make_policy
 
 __all__ = ["Decision", "Planner", "load_planner"]
 
@@ -90,12 +90,9 @@ def load_planner(
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
-    unknown = sorted(set(planner) - {"k", "depth", "proposals", "pick_branches", "turns_depth", "tie_band"})
+    unknown = sorted(set(planner) - set(PLANNER_OPTIONS))
     if unknown:
-        raise TvfError(
-            f"unknown planner option {unknown[0]!r}; choose k, depth, proposals, pick_branches, turns_depth "
-            "or tie_band"
-        )
+        raise TvfError(f"unknown planner option {unknown[0]!r}; choose one of {', '.join(PLANNER_OPTIONS)}")
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
     spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, **planner)

@@ -6,7 +6,7 @@ Append-only logs (``episodes.jsonl``, ``metrics.jsonl``, ``failures.jsonl``) go 
 :func:`append_jsonl` / :func:`read_jsonl`: a whole line per write, read back tolerating a torn last line.
 A full disk (``ENOSPC``, also wrapped by libraries) becomes a one-line :class:`~tvf.errors.DiskFullError`
 naming the file, with no partial file or line left behind. Commands check their output folders and files
-here before any work (:func:`check_output_dir`, :func:`check_output_file`).
+here before any work (:func:`check_output_dir`, :func:`output_dir`, :func:`check_output_file`).
 """
 
 from __future__ import annotations
@@ -143,6 +143,22 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> Path:
             f"cannot write to output directory {path}: {exc.strerror}; choose another {flag}"
         ) from None
     return path
+
+
+@contextmanager
+def output_dir(path: str | Path, flag: str = "--out") -> Iterator[Path]:
+    """:func:`check_output_dir`, for setup that may still fail: on an error inside the block, the folders
+    this call created are removed again while they are empty (a refused command leaves nothing behind)."""
+    path = Path(path)
+    created = [p for p in (path, *path.parents) if not p.exists()]
+    check_output_dir(path, flag)
+    try:
+        yield path
+    except BaseException:
+        for folder in created:  # deepest first
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only empty folders go
+        raise
 
 
 def check_output_file(path: str | Path, flag: str) -> Path:

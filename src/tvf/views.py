@@ -506,18 +506,20 @@ WORKSPACE_FILE_HEADER = (
 )
 
 
-def write_views(folder: str | Path, views: Sequence[View], cameras: Sequence[PinholeCamera],
-                workspace: Workspace = WORKSPACE) -> list[Path]:  # fmt: skip
-    """Write what a real rig records: per camera a colour PNG, a 16-bit depth PNG in mm and a camera file,
-    plus ``workspace.yaml``; returns the camera files."""
+def write_views(
+    folder: str | Path, views: Sequence[View], cameras: Sequence[PinholeCamera],
+    workspace: Workspace = WORKSPACE, depth_scale: float = DEFAULT_DEPTH_SCALE,
+) -> list[Path]:  # fmt: skip
+    """Write what a real rig records: per camera a colour PNG, a 16-bit depth PNG (``depth_scale`` metres a
+    unit: millimetres by default) and a camera file, plus ``workspace.yaml``; returns the camera files."""
     folder = Path(folder)
     paths = []
     for (rgb, depth), cam in zip(views, cameras, strict=True):
-        doc = camera_document(cam)
+        doc = camera_document(cam, depth_scale)
         atomic_write_bytes(
             folder / doc["color"], iio.imwrite("<bytes>", np.asarray(rgb, np.uint8), extension=".png")
         )
-        atomic_write_bytes(folder / doc["depth"], depth_png_bytes(depth))
+        atomic_write_bytes(folder / doc["depth"], depth_png_bytes(depth, depth_scale))
         text = CAMERA_FILE_HEADER + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=200)
         paths.append(folder / f"{cam.name}.yaml")
         atomic_write_bytes(paths[-1], text.encode())

@@ -51,6 +51,13 @@ def test_a_tvf_decision_is_the_policys_and_keeps_its_plan(scene):
     assert first.plan.first.index == 0 and banded._policy.search.config.tie_band == 0.5
 
 
+def test_every_planner_option_of_the_cli_reaches_the_search():
+    options = dict(k=2, depth=2, proposals="nms", pick_branches=2, turns_depth=1, alpha=0.05, nms_radius=9.0,
+                   tie_band=0.01)  # fmt: skip
+    config = tvf.load_planner("tvf-large", **options)._policy.search.config
+    assert {name: getattr(config, name) for name in options} == options
+
+
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):
     _, obs = scene
     planner = tvf.load_planner("gctn")

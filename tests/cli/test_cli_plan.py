@@ -90,6 +90,21 @@ def test_float_depth_files_give_the_simulators_images_bit_for_bit(tmp_path):
         env.close()
 
 
+def test_finer_depth_units_are_recorded_and_bring_the_map_closer(rigs, tmp_path, capsys):
+    folder, fine = rigs["put-t"], tmp_path / "fine"
+    code, _, err = run(capsys, "render", "--task", "put-t", "--seed", "1", "--out", str(fine),
+                       "--export-views", str(fine / "rig"), "--depth-scale", "0.0001")  # fmt: skip
+    assert code == 0, err
+    assert yaml.safe_load((fine / "rig" / "scene" / "front.yaml").read_text())["depth_scale"] == 0.0001
+    _, height = simulator_images(folder, "initial")
+    errors = [np.abs(load_rgbh(f / "rig" / "scene", WORKSPACE, "--views").height - height).mean()
+              for f in (folder, fine)]  # fmt: skip
+    assert errors[1] < errors[0] / 3  # 0.1 mm units against mm units
+    code, _, err = run(capsys, "render", "--task", "put-t", "--out", str(tmp_path / "bad"),
+                       "--depth-scale", "1")  # fmt: skip
+    assert code == 2 and "--depth-scale is metres per unit" in err and len(err.strip().splitlines()) == 1
+
+
 def simulator_decision(folder) -> tvf.Decision:
     """Planning inside the simulator: the GCTN on the simulator's own fused images."""
     obs, goal = simulator_images(folder, "initial"), simulator_images(folder, "goal")

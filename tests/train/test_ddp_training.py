@@ -125,6 +125,7 @@ def _ddp_sessions(rank: int, port: int, data_root: Path, root: Path) -> None:
         dist.destroy_process_group()
 
 
+@pytest.mark.slow  # two ranks trained twice: about 30 s on 2 cores
 def test_two_processes_train_like_one_and_resume_exactly(data_root, tmp_path):
     mp.spawn(_ddp_sessions, args=(_free_port(), data_root, tmp_path), nprocs=2, join=True)
     full, part = tmp_path / "full", tmp_path / "part"

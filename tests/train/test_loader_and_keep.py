@@ -59,6 +59,7 @@ def test_loader_workers_build_the_same_batches_as_the_training_thread(data_root,
 
 
 @QUIET
+@pytest.mark.slow  # loader processes: about 12 s
 def test_a_run_with_loader_workers_trains_the_same_weights(data_root, tmp_path):
     plain = config(data_root, tmp_path / "plain", steps=3, checkpoint_every=3)
     workers = replace(plain, out=tmp_path / "workers", loader_workers=2)
@@ -69,6 +70,7 @@ def test_a_run_with_loader_workers_trains_the_same_weights(data_root, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow  # a run resumed three times; the deletion rule itself is tested below
 def test_keep_leaves_the_newest_step_checkpoints_and_last(data_root, tmp_path):
     cfg = config(data_root, tmp_path / "run", keep=2)
     train(cfg, gctn_job(cfg))

@@ -184,6 +184,7 @@ def finished_wandb_records(path: Path, timeout: float = 120.0) -> list:
         time.sleep(0.5)
 
 
+@pytest.mark.slow  # wandb's offline service starts: about 12 s
 def test_wandb_offline_gets_the_scalars_and_the_images(data_root, tmp_path, monkeypatch):
     pytest.importorskip("wandb")
     for var, value in (("WANDB_MODE", "offline"), ("WANDB_SILENT", "true"), ("WANDB_CONSOLE", "off")):
@@ -215,6 +216,13 @@ def test_missing_wandb_is_a_one_line_error(data_root, tmp_path, monkeypatch, cap
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "pip install 'tvf[wandb]'" in err
     assert not (tmp_path / "run").exists()  # refused before the run folder was made
+
+
+def test_a_bad_init_is_refused_without_leaving_an_empty_run_folder(data_root, tmp_path, capsys):
+    out = tmp_path / "new" / "run"
+    code, _, err = run(capsys, "train", "gctn", *cli_flags(data_root, out), "--init", str(tmp_path / "no.pt"))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "no.pt" in err
+    assert not (tmp_path / "new").exists()  # both folders the command made are gone again
 
 
 # --- relaunching from config.json -----------------------------------------------------------------------

@@ -11,12 +11,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tvf.errors import TvfError
-from tvf.io import check_output_dir, check_output_file
+from tvf.io import check_output_dir, check_output_file, output_dir
 
 if TYPE_CHECKING:
     from tvf.policies import PolicySpec
 
-__all__ = ["PlannerFlags", "at_least_one", "check_output_dir", "check_output_file"]
+__all__ = ["PlannerFlags", "at_least_one", "check_output_dir", "check_output_file", "output_dir"]
 
 
 @dataclass(frozen=True)

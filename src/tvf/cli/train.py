@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from tvf.cli.common import check_output_dir
+from tvf.cli.common import output_dir
 from tvf.errors import TvfError
 from tvf.io import read_json
 from tvf.train.config import TrainConfig
@@ -77,8 +77,8 @@ def run_training(cfg: TrainConfig, kind: str) -> None:
     from tvf.train.trainer import check_config, train
 
     check_config(with_recipe(cfg, kind))  # bad flags and an unwritable --out: one line, before any data
-    check_output_dir(cfg.out)
-    resolved, job = training_job(cfg, kind)
+    with output_dir(cfg.out):  # a bad --init or data: no empty --out folder left behind
+        resolved, job = training_job(cfg, kind)
     val = train(resolved, job)
     if world_from_env().main:  # under torchrun, rank 0 speaks for the run
         shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "no validation data"

@@ -100,10 +100,12 @@ class OracleCmd:
                                           "success": mean})  # fmt: skip
 
 
-def render_scene(task, seed: int, out: Path, export_views: Path | None = None, sensor: str = "ideal") -> dict:
+def render_scene(task, seed: int, out: Path, export_views: Path | None = None, sensor: str = "ideal",
+                 depth_scale: float = 0.001) -> dict:  # fmt: skip
     """Write the initial and goal images (PNG + NPZ) and a perspective view of a task's scene; with
-    ``export_views`` also the cameras' views of both, as a real rig records them (tvf.views), and all of it
-    through ``sensor`` (tvf.sim.sensors: noise, dropout, one camera, calibration errors)."""
+    ``export_views`` also the cameras' views of both, as a real rig records them (tvf.views; depth PNGs in
+    units of ``depth_scale`` metres), and all of it through ``sensor`` (tvf.sim.sensors: noise, dropout,
+    one camera, calibration errors)."""
     from tvf.io import atomic_write_bytes
     from tvf.sim.env import TvfEnv
     from tvf.sim.views import perspective_view
@@ -118,8 +120,8 @@ def render_scene(task, seed: int, out: Path, export_views: Path | None = None, s
             atomic_write_bytes(out / f"{name}.npz", rgbh_bytes(image["color"], image["height"]))
         save_png(out / "perspective.png", perspective_view(env.world))
         if export_views is not None:
-            write_views(export_views / "scene", *env.sensed_views(), env.world.workspace)
-            write_views(export_views / "goal", *env.goal_views, env.world.workspace)
+            write_views(export_views / "scene", *env.sensed_views(), env.world.workspace, depth_scale)
+            write_views(export_views / "goal", *env.goal_views, env.world.workspace, depth_scale)
         return {"task": env.task.name, "seed": seed, "blocks": env.task.n_blocks, "coverage": env.coverage}
     finally:
         env.close()
@@ -145,16 +147,22 @@ class RenderCmd:
     sensor: str = "ideal"
     """The cameras (tvf.sim.sensors; docs/real-robot.md): ideal | one | d415 | d415-one | d415-one-calib |
     d435-one. The images (and the exported views) are what that rig records."""
+    depth_scale: float = 0.001
+    """Metres per unit of the exported 16-bit depth PNGs: 0.001 (mm, ROS REP 118's default) or finer, e.g.
+    0.0001 (a RealSense's finest setting; 16 bits then reach 6.5 m). Each camera file records it."""
 
     def run(self) -> None:
         from tvf.sim.sensors import get_sensor
         from tvf.tasks import load_tasks
 
         get_sensor(self.sensor)
+        if not 1e-6 <= self.depth_scale <= 0.01:
+            raise TvfError(f"--depth-scale is metres per unit of the depth PNGs, between 1e-6 and 0.01 "
+                           f"(0.001: millimetres), got {self.depth_scale}")  # fmt: skip
         task = load_tasks(self.task_file).get(self.task)
         out = check_output_dir(self.out)
         export = None if self.export_views is None else check_output_dir(self.export_views, "--export-views")
-        info = render_scene(task, self.seed, out, export, self.sensor)
+        info = render_scene(task, self.seed, out, export, self.sensor, self.depth_scale)
         what = "initial/goal .png/.npz and perspective.png"
         cover = ", ".join(f"{k} {v:.1%}" for k, v in info["coverage"].items())
         print(f"wrote {what} for {info['task']} seed {self.seed} to {self.out} (sensor {self.sensor}; "

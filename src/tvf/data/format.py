@@ -131,6 +131,8 @@ class Episode:
     attrs: dict[str, Any] = field(default_factory=dict)
     """Other attributes (versions, configuration, per-step primitive results)."""
     path: Path | None = None
+    checksum: str | None = field(default=None, compare=False)
+    """Read from a file: its content digest (as :attr:`EpisodeInfo.checksum`; None for format 1 files)."""
 
     @property
     def n_steps(self) -> int:
@@ -613,6 +615,7 @@ def read_episode(path: str | Path, lazy: bool = False) -> Episode:
                 LazyFrames(path, name, shape, dtype, sums) if lazy else r.frames(name, np.arange(shape[0]))
             )
         attrs = {k: _decode_attr(v) for k, v in r.file.attrs.items() if k != CHECKSUMS}
+        checksum = _content_sha256(r.raw_sums)
     episode = Episode(
         task=str(attrs.pop("task")),
         seed=int(attrs.pop("seed")),
@@ -620,16 +623,11 @@ def read_episode(path: str | Path, lazy: bool = False) -> Episode:
         success=bool(attrs.pop("success")),
         attrs=attrs,
         path=path,
+        checksum=checksum,
         **arrays,
     )
     episode.validate()
     return episode
-
-
-def episode_checksum(path: str | Path) -> str | None:
-    """The content digest :class:`EpisodeInfo` and the manifest record for a file (header read only)."""
-    with _Reader(path) as r:
-        return _content_sha256(r.raw_sums)
 
 
 def read_frames(path: str | Path, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

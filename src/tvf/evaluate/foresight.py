@@ -35,7 +35,7 @@ from tvf.errors import TvfError
 from tvf.io import atomic_write_bytes
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
-from tvf.models.vf import encode_action, height_changed, square_masks
+from tvf.models.vf import encode_action, height_changed, paste_place_window
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
@@ -45,9 +45,7 @@ METHODS = ("vf", "copy", "paste")
 
 def paste_baseline(rgbh: torch.Tensor, pick, place, yaw, window: int) -> torch.Tensor:
     """The input with the rotated pick window pasted at the place pixel (no learning)."""
-    enc = encode_action(rgbh, pick, place, yaw, window)
-    mask = square_masks(place, window, rgbh.shape[-2], rgbh.shape[-1])
-    return rgbh * (1 - mask) + enc[:, 5:9] * mask
+    return paste_place_window(rgbh, encode_action(rgbh, pick, place, yaw, window), place, window)
 
 
 def transition_metrics(

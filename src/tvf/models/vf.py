@@ -82,13 +82,20 @@ BLEND_SOURCES = ("keep", "paste", "draw")
 """The blend head's per-pixel choices, in the order of its logit channels."""
 
 
+def paste_place_window(
+    rgbh: torch.Tensor, encoding: torch.Tensor, place: torch.Tensor, window: int
+) -> torch.Tensor:
+    """The input with the moved pick window of ``encoding`` (:func:`encode_action`) pasted at the place:
+    the no-learning prediction (B, 4, H, W)."""
+    mask = square_masks(place, window, *rgbh.shape[-2:]).to(rgbh.dtype)
+    return rgbh * (1 - mask) + encoding[:, RGBH_CHANNELS + 1 :] * mask
+
+
 def blend_output(
     rgbh: torch.Tensor, encoding: torch.Tensor, y: torch.Tensor, place: torch.Tensor, window: int
 ) -> torch.Tensor:
     """The blend head's image: softmax-weighted input, pasted window and drawn value (B, 4, H, W)."""
-    h, w = rgbh.shape[-2:]
-    mask = square_masks(place, window, h, w).to(rgbh.dtype)
-    pasted = rgbh * (1 - mask) + encoding[:, RGBH_CHANNELS + 1 :] * mask
+    pasted = paste_place_window(rgbh, encoding, place, window)
     weights = torch.softmax(y[:, RGBH_CHANNELS:], dim=1)
     return weights[:, :1] * rgbh + weights[:, 1:2] * pasted + weights[:, 2:3] * y[:, :RGBH_CHANNELS]
 

@@ -18,6 +18,17 @@ from tvf.planning.search import PlannerConfig
 from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 
+PLANNER_OPTIONS = (
+    "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band"
+)  # fmt: skip
+"""The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
+name; their flags are ``--k``, ``--pick-branches``, ...)."""
+
+
+def planner_flags() -> str:
+    """The planner options as command-line flags, for error messages."""
+    return ", ".join("--" + name.replace("_", "-") for name in PLANNER_OPTIONS)
+
 
 @dataclass(frozen=True)
 class PolicySpec:
@@ -46,9 +57,7 @@ class PolicySpec:
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
-        fields = {"k": self.k, "depth": self.depth, "proposals": self.proposals,
-                  "pick_branches": self.pick_branches, "turns_depth": self.turns_depth, "alpha": self.alpha,
-                  "nms_radius": self.nms_radius, "tie_band": self.tie_band}  # fmt: skip
+        fields = {name: getattr(self, name) for name in PLANNER_OPTIONS}
         return {name: value for name, value in fields.items() if value is not None}
 
 
@@ -142,10 +151,7 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
     try:
         return replace(method.planner, **changes)
     except ValueError as exc:
-        raise TvfError(
-            f"{exc.args[0]}; fix the planner flags "
-            "(--k, --depth, --proposals, --pick-branches, --alpha, --nms-radius, --turns-depth, --tie-band)"
-        ) from None
+        raise TvfError(f"{exc.args[0]}; fix the planner flags ({planner_flags()})") from None
 
 
 def make_policy(spec: PolicySpec, env=None) -> Policy:

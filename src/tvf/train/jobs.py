@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from tvf.data.dataset import demo_subset, open_dataset
-from tvf.data.format import DataError, Episode, episode_checksum
+from tvf.data.format import DataError, Episode
 from tvf.data.samplers import GctnSampler, VfSampler
 from tvf.models.checkpoint import load_checkpoint, trained_checkpoint
 from tvf.models.gctn import GCTN
@@ -70,7 +70,7 @@ def data_content(splits: dict[str, list[Episode]]) -> dict[str, Any]:
 def _content(episode: Episode) -> str:
     if episode.path is None:
         return "in memory"
-    return (episode_checksum(episode.path) or "unverified")[:16]  # format 1 files carry no checksums
+    return (episode.checksum or "unverified")[:16]  # format 1 files carry no checksums
 
 
 def task_table(cfg: TrainConfig) -> TaskTable:
