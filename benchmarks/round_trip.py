@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import tempfile
 from pathlib import Path
 
@@ -26,10 +27,11 @@ import numpy as np
 import torch
 
 from tvf.api import load_planner
-from tvf.planning.search import Plan, best_node
+from tvf.planning.search import Plan, best_node, root_values
 from tvf.sim.env import TvfEnv
-from tvf.tasks import load_tasks
-from tvf.views import folder_workspace, load_rgbh, write_views
+from tvf.tasks import BLOCK_SYMMETRY, load_tasks
+from tvf.train.jobs import PICK_TOLERANCE_PX, PLACE_TOLERANCE_PX
+from tvf.views import DEFAULT_DEPTH_SCALE, folder_workspace, load_rgbh, write_views
 
 
 def action_key(node) -> tuple:
@@ -44,28 +46,22 @@ def first_action(plan: Plan, band: float) -> tuple:
     return action_key(node)
 
 
-def root_values(plan: Plan) -> dict[tuple, float]:
-    """Each root action's best score in its subtree."""
-    root, value = {}, {}
-    for i, node in enumerate(plan.nodes):
-        root[i] = i if node.parent < 0 else root[node.parent]
-        key = action_key(plan.nodes[root[i]])
-        value[key] = max(value.get(key, -np.inf), node.score)
-    return value
+def subtree_values(plan: Plan) -> dict[tuple, float]:
+    """Each root action's best score in its subtree (``tvf.planning.search.root_values``)."""
+    _, value = root_values(plan.nodes)
+    return {action_key(n): float(value[i]) for i, n in enumerate(plan.nodes) if n.parent < 0}
 
 
 def physically_same(a: tuple, b: tuple, n_rotations: int = 36) -> bool:
-    """The same block picked and put at the same place: pick within 6 px, place within 3 px, the
-    rotation within one bin modulo a quarter turn (a block's symmetry)."""
+    """The same block picked and put at the same place, by the GCTN's accuracy tolerances
+    (``tvf.train.jobs``): pick within 6 px, place within 3 px, the rotation within one bin modulo a
+    block's symmetry (a quarter turn)."""
     (pick_a, place_a, rot_a), (pick_b, place_b, rot_b) = a, b
-    period = n_rotations // 4
+    period = round(n_rotations * BLOCK_SYMMETRY / (2 * math.pi))
     turn = (rot_a - rot_b) % period
-
-    def moved(a, b) -> int:
-        return int(np.abs(np.subtract(a, b)).max())
-
-    close = moved(pick_a, pick_b) <= 6 and moved(place_a, place_b) <= 3
-    return bool(close and min(turn, period - turn) <= 1)
+    pick_ok = np.abs(np.subtract(pick_a, pick_b)).max() <= PICK_TOLERANCE_PX
+    place_ok = np.abs(np.subtract(place_a, place_b)).max() <= PLACE_TOLERANCE_PX
+    return bool(pick_ok and place_ok and min(turn, period - turn) <= 1)
 
 
 def roots(plan: Plan) -> list[tuple]:
@@ -79,7 +75,9 @@ def main() -> None:
     parser.add_argument("--seed-start", type=int, default=1_000_001)
     parser.add_argument("--bands", default="0,0.0001,0.001,0.003")
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--depth-scale", type=float, default=0.001, help="metres per unit of the depth PNGs")
+    parser.add_argument(
+        "--depth-scale", type=float, default=DEFAULT_DEPTH_SCALE, help="metres per unit of the depth PNGs"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     bands = [float(b) for b in args.bands.split(",")]
@@ -113,7 +111,7 @@ def main() -> None:
             mine, theirs = first_action(inside.plan, 0.0), first_action(outside.plan, 0.0)
             same_block += physically_same(mine, theirs)
             if mine != theirs:
-                values = root_values(inside.plan)
+                values = subtree_values(inside.plan)
                 gaps.append(None if theirs not in values else round(values[mine] - values[theirs], 6))
             for b in bands:
                 agree[b] += first_action(inside.plan, b) == first_action(outside.plan, b)

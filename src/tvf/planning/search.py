@@ -140,6 +140,17 @@ class Plan:
         return self.path[0]
 
 
+def root_values(nodes: list[Node]) -> tuple[np.ndarray, np.ndarray]:
+    """For ``nodes`` in breadth-first order: the index of each node's root action (a depth-1 node), and
+    per node index the best score in that root's subtree (-inf for nodes that are not roots)."""
+    root = np.empty(len(nodes), dtype=int)
+    for i, node in enumerate(nodes):
+        root[i] = i if node.parent < 0 else root[node.parent]
+    value = np.full(len(nodes), -np.inf)
+    np.maximum.at(value, root, np.array([node.score for node in nodes]))
+    return root, value
+
+
 def best_node(nodes: list[Node], tie_band: float = 0.0) -> int:
     """The node whose path is executed (``nodes`` in breadth-first order, so the root actions come first,
     in proposal order). Band 0: the first maximum (the shallowest, then the earliest). Otherwise the
@@ -147,11 +158,7 @@ def best_node(nodes: list[Node], tie_band: float = 0.0) -> int:
     scores = np.array([node.score for node in nodes])
     if tie_band <= 0:
         return int(np.argmax(scores))
-    root = np.empty(len(nodes), dtype=int)
-    for i, node in enumerate(nodes):
-        root[i] = i if node.parent < 0 else root[node.parent]
-    value = np.full(len(nodes), -np.inf)
-    np.maximum.at(value, root, scores)
+    root, value = root_values(nodes)
     chosen = int(np.flatnonzero(value >= scores.max() - tie_band)[0])
     return int(np.flatnonzero(root == chosen)[np.argmax(scores[root == chosen])])
 
