@@ -18,10 +18,10 @@ venv: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 --dist loadfile -q
 
 test-all: $(STAMP)
-	$(PY) -m pytest -n 2 -q -m ""
+	$(PY) -m pytest -n 2 --dist loadfile -q -m ""
 
 lint: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks

@@ -8,7 +8,8 @@ they exist (realistic proposal counts); other presets use seeded random weights.
 ``--rules`` also times TVF-Large under other proposal rules side by side (same models, same run),
 e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks; a further
 ``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``, and ``+tdepthD`` does so at
-the first D levels only, ``--turns-depth``).
+the first D levels only, ``--turns-depth``; ``+rootR``, ``+kK`` and ``+depthD`` set ``--root-k``, ``--k`` and
+``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -60,7 +61,7 @@ def first_observation(task: str, seed: int = 1):
 
 def rule_config(rule: str) -> tuple[dict, int]:
     """PlannerConfig fields and GCTN turns of a rule name: kmeans | nms | nms+picksP, each optionally
-    +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry)."""
+    +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR, +kK, +depthD."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
     turns = 1
@@ -71,8 +72,17 @@ def rule_config(rule: str) -> tuple[dict, int]:
             turns = int(option[len("turns") :])
         elif option.startswith("tdepth"):
             fields["turns_depth"] = int(option[len("tdepth") :])
+        elif option.startswith("root"):
+            fields["root_k"] = int(option[len("root") :])
+        elif option.startswith("depth"):
+            fields["depth"] = int(option[len("depth") :])
+        elif option.startswith("k"):
+            fields["k"] = int(option[len("k") :])
         else:
-            raise SystemExit(f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT or +tdepthD")
+            raise SystemExit(
+                f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK "
+                "or +depthD"
+            )
     return fields, turns
 
 
@@ -96,7 +106,7 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         out[name] = row
     for rule in rules:
         fields, turns = rule_config(rule)
-        search = TreeSearch(symmetrized(gctn, turns), vf, PlannerConfig(k=3, depth=3, **fields))
+        search = TreeSearch(symmetrized(gctn, turns), vf, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
         seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
         out[f"tvf-large/{rule}"] = {"batched_s": seconds, "counts": search.search(current, goal).counts}
     return out

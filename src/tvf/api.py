@@ -80,13 +80,14 @@ class Planner:
 
 def load_planner(
     method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
-    keep_images: bool = False, turns: int | None = None, **planner,
+    keep_images: bool = False, turns: int | None = None, goal_mask: bool | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches, turns_depth, tie_band; docs/planner.md); ``keep_images`` keeps a TVF plan's imagined
-    images; ``turns`` (1, 2 or 4) averages the GCTN over quarter turns of the scene (default: the method's).
-    Errors name the bad argument or file in one line."""
+    pick_branches, turns_depth, tie_band, root_k; docs/planner.md); ``keep_images`` keeps a TVF plan's
+    imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the GCTN over quarter turns of the scene
+    (default: the method's); ``goal_mask`` True masks the GCTN's maps by the height difference to the goal
+    (:mod:`tvf.models.goal_mask`; default: the method's). Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
@@ -95,7 +96,7 @@ def load_planner(
         raise TvfError(f"unknown planner option {unknown[0]!r}; choose one of {', '.join(PLANNER_OPTIONS)}")
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
-    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, **planner)
+    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, goal_mask=goal_mask, **planner)
     policy = make_policy(spec)
     if hasattr(policy, "keep_images"):
         policy.keep_images = keep_images

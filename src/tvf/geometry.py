@@ -162,6 +162,17 @@ def quarter_turn_pixels(rowcol: np.ndarray, turns: int, size: int) -> np.ndarray
     return rc
 
 
+def mirror_pixels(rowcol: np.ndarray, size: int) -> np.ndarray:
+    """Where integer pixels ``(..., 2)`` of a ``size``-wide image go under ``np.flip(image, axis=-1)``
+    (``torch.flip(x, dims=(-1,))``): ``(r, c)`` goes to ``(r, size - 1 - c)``, its own inverse.
+
+    In the world that is the mirror image of the scene in the line through the image centre along the
+    rows; it turns every yaw ``theta`` into ``-theta``.
+    """
+    rc = np.asarray(rowcol)
+    return np.stack([rc[..., 0], size - 1 - rc[..., 1]], axis=-1)
+
+
 def heights_from_z(z: np.ndarray, ws: Workspace = WORKSPACE) -> np.ndarray:
     """World z -> height above the table in metres."""
     return np.asarray(z) - ws.z_min

@@ -8,6 +8,7 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 import pytest
+import torch
 
 import tvf
 import tvf.envs  # noqa: F401  (registers the environments)
@@ -108,18 +109,50 @@ def test_a_policy_with_nothing_to_do_is_a_one_line_error(scene):
         planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
 
 
+def _decisions_before_and_after(planner, scene, transform):
+    """The planner's decision on the scene, and on the scene with ``transform`` applied to every image."""
+    _, obs = scene
+    goal = obs["desired_goal"]
+    arrays = (obs["color"], obs["height"], goal["color"], goal["height"])
+    decision = planner.next_action(*arrays)
+    moved = planner.next_action(*(np.ascontiguousarray(transform(a)) for a in arrays))
+    return decision, moved
+
+
 def test_a_symmetrised_gctn_turns_its_decision_with_the_scene(scene):
     from tvf.geometry import quarter_turn_pixels
 
-    _, obs = scene
-    goal = obs["desired_goal"]
     planner = tvf.load_planner("gctn", turns=4)
-    arrays = (obs["color"], obs["height"], goal["color"], goal["height"])
-    decision = planner.next_action(*arrays)
-    turned = planner.next_action(*(np.ascontiguousarray(np.rot90(a)) for a in arrays))
+    decision, turned = _decisions_before_and_after(planner, scene, np.rot90)
     for name in ("pick_pixel", "place_pixel"):
         expected = quarter_turn_pixels(np.array(getattr(decision, name)), 1, 160)
         assert tuple(getattr(turned, name)) == tuple(expected.tolist())
     assert turned.rotation_bin == decision.rotation_bin  # the object's turn does not change
-    with pytest.raises(TvfError, match="--turns must be 1, 2 or 4"):
+    with pytest.raises(TvfError, match="--turns must be 1, 2, 4 .* or 8"):
         tvf.load_planner("gctn", turns=3)
+
+
+def test_the_eight_symmetries_mirror_the_decision_with_the_scene(scene):
+    from tvf.geometry import mirror_pixels
+
+    planner = tvf.load_planner("gctn", turns=8)
+    decision, mirrored = _decisions_before_and_after(planner, scene, lambda a: np.flip(a, axis=1))
+    for name in ("pick_pixel", "place_pixel"):
+        expected = mirror_pixels(np.array(getattr(decision, name)), 160)
+        assert tuple(getattr(mirrored, name)) == tuple(expected.tolist())
+    n = planner.n_rotations
+    assert mirrored.rotation_bin == (n - decision.rotation_bin) % n  # a mirror turns yaw into -yaw
+
+
+def test_a_goal_masked_planner_picks_a_block_the_goal_does_not_have_there(scene):
+    from tvf.models.goal_mask import GoalMaskedGCTN, pick_allowed, place_allowed
+    from tvf.policies.learned import observation_tensor
+
+    _, obs = scene
+    goal = obs["desired_goal"]
+    planner = tvf.load_planner("gctn", goal_mask=True)
+    assert isinstance(planner._policy.model.gctn, GoalMaskedGCTN)  # inside the method's four turns
+    decision = planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+    current, target = (observation_tensor(o, torch.device("cpu")) for o in (obs, goal))
+    assert pick_allowed(current, target)[0][tuple(decision.pick_pixel)]
+    assert place_allowed(current, target)[0][tuple(decision.place_pixel)]

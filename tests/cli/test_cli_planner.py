@@ -166,7 +166,7 @@ def test_ablate_runs_every_cell_resumes_and_matches_a_plain_eval(capsys, tmp_pat
         (("--k", "2,x"), "--k takes comma-separated whole numbers"),
         (("--depth", "0"), "--depth needs at least one value, each at least 1"),
         (("--method", "gctn"), "--method must be one of tvf-small, tvf-large"),
-        (("--turns", "3"), "--turns must be 1, 2 or 4"),
+        (("--turns", "3"), "--turns must be 1, 2, 4 (quarter turns"),
     ],
 )
 def test_ablate_refuses_a_bad_grid_in_one_line(capsys, tmp_path, args, message):

@@ -101,6 +101,7 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)
 
 
+@pytest.mark.slow  # make test-all
 def test_changed_data_is_named_and_restart_retrains_and_reevaluates(experiment, tmp_path):
     import shutil
     from dataclasses import replace

@@ -7,10 +7,18 @@ import pytest
 import torch
 
 from tvf.errors import TvfError
-from tvf.geometry import pixel_to_world, quarter_turn_pixels, rotate_xy
+from tvf.geometry import mirror_pixels, pixel_to_world, quarter_turn_pixels, rotate_xy
 from tvf.models.gctn import GCTN
 from tvf.models.presets import SMOKE
-from tvf.models.symmetry import SymmetrizedGCTN, symmetrized
+from tvf.models.symmetry import (
+    SymmetrizedGCTN,
+    group_elements,
+    mirrored_channels,
+    symmetrized,
+    transform,
+    transform_pixels,
+    untransform,
+)
 
 QUARTER = SMOKE.replace(symmetry=4, pad_features=True)
 
@@ -34,6 +42,42 @@ def test_a_quarter_turn_is_a_world_yaw_of_minus_90_degrees() -> None:
     moved = pixel_to_world(quarter_turn_pixels(pixels, 1, 160)) - centre
     expected = rotate_xy(pixel_to_world(pixels) - centre, -np.pi / 2)
     np.testing.assert_allclose(moved, expected, atol=1e-12)
+
+
+def test_mirror_pixels_follow_flip_and_a_mirror_negates_world_yaws() -> None:
+    rng = np.random.default_rng(0)
+    pixels = rng.integers(0, 7, size=(5, 2))
+    image = np.zeros((5, 7, 7))
+    image[np.arange(5), pixels[:, 0], pixels[:, 1]] = 1
+    moved = mirror_pixels(pixels, 7)
+    assert (np.flip(image, axis=-1)[np.arange(5), moved[:, 0], moved[:, 1]] == 1).all()
+    assert (mirror_pixels(moved, 7) == pixels).all()
+    # in the world the mirror is a reflection M (det -1) about the image centre, and M R(t) = R(-t) M
+    centre = pixel_to_world(np.array([79.5, 79.5]))
+    points = rng.uniform(0, 159, size=(6, 2))
+    world, world_mirrored = (
+        pixel_to_world(points) - centre,
+        pixel_to_world(mirror_pixels(points, 159 + 1)) - centre,
+    )
+    m = np.linalg.lstsq(world, world_mirrored, rcond=None)[0].T
+    np.testing.assert_allclose(world @ m.T, world_mirrored, atol=1e-12)
+    assert np.isclose(np.linalg.det(m), -1.0) and np.allclose(m @ m, np.eye(2))
+    np.testing.assert_allclose(rotate_xy(world_mirrored, -0.3), rotate_xy(world, 0.3) @ m.T, atol=1e-12)
+
+
+def test_the_eight_symmetries_are_a_group_of_exact_pixel_permutations(generator: torch.Generator) -> None:
+    elements = group_elements(8)
+    assert len(set(elements)) == 8 and elements[0] == (0, False)
+    assert group_elements(4) == ((0, False), (1, False), (2, False), (3, False))
+    image = torch.randn(2, 3, 6, 6, generator=generator)
+    pixels = np.array([[0, 1], [4, 5], [2, 2]])
+    for g in elements:
+        torch.testing.assert_close(untransform(transform(image, g), g), image, rtol=0, atol=0)
+        moved = transform_pixels(pixels, g, 6)
+        marked = torch.zeros(3, 6, 6)
+        marked[np.arange(3), pixels[:, 0], pixels[:, 1]] = 1
+        assert (transform(marked, g)[np.arange(3), moved[:, 0], moved[:, 1]] == 1).all()
+    assert mirrored_channels(9).tolist() == [0, 8, 7, 6, 5, 4, 3, 2, 1]  # +10 deg <-> -10 deg, 0 stays
 
 
 def _scene(generator: torch.Generator, b: int = 2):
@@ -60,6 +104,27 @@ def test_symmetrised_maps_are_exactly_equivariant(generator: torch.Generator, tu
     with torch.no_grad():
         alone, alone_turned = plain.pick_logits(current, goal), plain.pick_logits(rot(current), rot(goal))
     assert not torch.allclose(alone_turned, rot(alone), atol=1e-3)  # the network alone is not equivariant
+
+
+def test_eight_turns_are_exactly_equivariant_to_the_mirror_with_the_turns_reversed(generator) -> None:
+    model = SymmetrizedGCTN(GCTN(QUARTER, seed=3).eval(), 8)
+    current, goal, picks = _scene(generator)
+    flip = lambda x: torch.flip(x, dims=(-1,))  # noqa: E731
+    mirrored_picks = torch.as_tensor(mirror_pixels(picks.numpy(), 160))
+    with torch.no_grad():
+        pick, pick_mirrored = model.pick_logits(current, goal), model.pick_logits(flip(current), flip(goal))
+        place = model.place_maps(current, goal, picks)
+        place_mirrored = model.place_maps(flip(current), flip(goal), mirrored_picks)
+        turned = model.pick_logits(torch.rot90(current, 1, (-2, -1)), torch.rot90(goal, 1, (-2, -1)))
+    torch.testing.assert_close(pick_mirrored, flip(pick), atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(turned, torch.rot90(pick, 1, (-2, -1)), atol=1e-5, rtol=1e-5)
+    channels, scale = mirrored_channels(place.shape[2]), place.abs().max()  # random weights: tiny logits
+    torch.testing.assert_close(place_mirrored / scale, flip(place)[:, :, channels] / scale, atol=1e-5, rtol=0)
+    assert not torch.allclose(place_mirrored / scale, flip(place) / scale, atol=1e-2)  # the channels move
+    four = SymmetrizedGCTN(GCTN(QUARTER, seed=3).eval(), 4)
+    with torch.no_grad():
+        alone, alone_mirrored = four.pick_logits(current, goal), four.pick_logits(flip(current), flip(goal))
+    assert not torch.allclose(alone_mirrored, flip(alone), atol=1e-3)  # C4 alone is not mirror-equivariant
 
 
 def test_symmetrised_act_is_the_argmax_of_its_averaged_maps(generator: torch.Generator) -> None:
@@ -101,7 +166,7 @@ def test_the_symmetrised_loss_is_invariant_to_turns_and_trains_the_wrapped_gctn(
 def test_one_turn_is_the_model_itself_and_bad_turns_are_refused() -> None:
     plain = GCTN(QUARTER)
     assert symmetrized(plain, 1) is plain
-    with pytest.raises(TvfError, match="--turns must be 1, 2 or 4"):
+    with pytest.raises(TvfError, match=r"--turns must be 1, 2, 4 \(quarter turns .*\) or 8"):
         symmetrized(plain, 3)
     model = SymmetrizedGCTN(plain, 4)
     with pytest.raises(ValueError, match="expected goal features"):

@@ -133,6 +133,24 @@ def test_tree_shape_and_one_model_call_per_level():
             assert plan.nodes[node.parent].depth == node.depth - 1
 
 
+def test_root_k_widens_the_root_and_keeps_k_below():
+    wide = TreeSearch(ToyGctn(), ToyVf(), PlannerConfig(k=1, root_k=2, depth=2))
+    plan = _plan(wide)
+    assert [sum(n.depth == d for n in plan.nodes) for d in (1, 2)] == [2, 2]  # 2 root actions, 1 child each
+    assert {tuple(n.place.tolist()) for n in plan.nodes if n.depth == 1} == {(1, 1), (6, 6)}
+    narrow = _plan(TreeSearch(ToyGctn(), ToyVf(), PlannerConfig(k=2, root_k=1, depth=2)))
+    assert [sum(n.depth == d for n in narrow.nodes) for d in (1, 2)] == [1, 2]
+    # the wide root looks past the greedy trap (1, 1) with one child per action and reaches the goal
+    assert plan.first.place.tolist() == [6, 6] and plan.nodes[plan.best].distance == pytest.approx(0.0)
+
+
+def test_pick_branches_are_capped_by_each_level_k():
+    cfg = PlannerConfig(k=2, root_k=6, pick_branches=3, depth=3)
+    assert [cfg.k_at(level) for level in (1, 2, 3)] == [6, 2, 2]
+    assert [cfg.pick_branches_at(level) for level in (1, 2, 3)] == [3, 2, 2]
+    assert PlannerConfig(k=3).k_at(1) == 3 and PlannerConfig(k=3).widest == 3
+
+
 def test_node_by_node_search_gives_the_same_plan():
     a, b = _plan(toy_search(2, 3)), _plan(toy_search(2, 3, batched=False))
     assert [(n.place.tolist(), n.rotation, n.score) for n in a.nodes] == [
@@ -546,6 +564,11 @@ def test_the_root_proposals_use_every_planner_setting(settings: dict, defaults_d
         (dict(alpha=1.5), "alpha must be in (0, 1], got 1.5"),
         (dict(tie_band=-1e-4), "tie_band must be a score difference >= 0, got -0.0001"),
         (dict(tie_band=math.inf), "tie_band must be a score difference >= 0, got inf"),
+        (dict(root_k=0), "root_k must be None or at least 1, got 0"),
+        (
+            dict(k=2, root_k=4, pick_branches=5),
+            "pick_branches must be between 1 and root_k = 4 (the picks share the K proposals), got 5",
+        ),
     ],
 )
 def test_config_errors_name_the_setting_and_the_value(changes: dict, message: str):
@@ -564,6 +587,8 @@ def test_config_accepts_the_edges_of_every_range():
         dict(turns_depth=1),
         dict(alpha=1.0),
         dict(tie_band=0.0),
+        dict(k=2, root_k=4, pick_branches=4),
+        dict(k=3, root_k=1),
     ):
         config = PlannerConfig(**edge)
         assert all(getattr(config, key) == value for key, value in edge.items())
@@ -600,3 +625,30 @@ def test_the_search_applies_its_tie_band():
 
     # depth 1: the first proposal (6, 6) scores 0.70, the second (1, 1) 0.90
     assert first(0.0) == first(0.1) == [1, 1] and first(0.25) == [6, 6]
+
+
+def _blocks(centres: list[tuple[int, int]]) -> torch.Tensor:
+    """RGB-H (1, 4, 160, 160) of a grey table with 13 x 13 px, 4 cm red blocks at ``centres``."""
+    from tvf.models.images import to_rgbh
+
+    color, height = torch.full((160, 160, 3), 50.0), torch.zeros(160, 160)
+    for r, c in centres:
+        color[r - 6 : r + 7, c - 6 : c + 7] = torch.tensor([255.0, 87.0, 89.0])
+        height[r - 6 : r + 7, c - 6 : c + 7] = 0.04
+    return to_rgbh(color, height)
+
+
+def test_a_goal_masked_gctn_picks_the_loose_block_and_proposes_places_the_goal_fills():
+    from tvf.models.goal_mask import GoalMaskedGCTN, pick_allowed, place_allowed
+    from tvf.models.symmetry import SymmetrizedGCTN
+
+    preset = get_preset("smoke").replace(symmetry=4, pad_features=True)
+    gctn = SymmetrizedGCTN(GoalMaskedGCTN(GCTN(preset, seed=1).eval()), 4)
+    vf = VisualForesight(preset, seed=2).eval()
+    current, goal = _blocks([(30, 30), (80, 80)]), _blocks([(80, 80), (80, 110), (120, 60)])
+    config = PlannerConfig(k=3, depth=2, proposals="nms", pick_branches=2, turns_depth=1)
+    plan = TreeSearch(gctn, vf, config).search(current, goal)
+    picks, places = pick_allowed(current, goal)[0], place_allowed(current, goal)[0]
+    roots = [n for n in plan.nodes if n.depth == 1]
+    assert roots and all(picks[tuple(n.pick.tolist())] and places[tuple(n.place.tolist())] for n in roots)
+    assert {tuple(n.pick.tolist()) for n in roots} <= {(r, c) for r in range(24, 37) for c in range(24, 37)}

@@ -33,7 +33,7 @@ def test_planner_presets_and_overrides():
     paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1, turns=1))
     assert replace(paper, turns_depth=None) == PlannerConfig(k=3, depth=3)  # the paper's TVF-L (turns 1)
     assert large.turns_depth == 1 and small.turns_depth == 1
-    assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 4, 4]
+    assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 4, 8]
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
         planner_of(PolicySpec("tvf-huge"))
     with pytest.raises(TvfError, match="does not plan"):
@@ -55,7 +55,20 @@ def test_the_spec_turns_choose_the_symmetrised_gctn():
     assert type(paper.model) is GCTN
     assert make_policy(PolicySpec("tvf-small")).search.gctn.turns == 4  # every method's default now
     assert type(make_policy(PolicySpec("tvf-small", turns=1)).search.gctn) is GCTN
+    assert make_policy(PolicySpec("tvf-large")).search.gctn.turns == 8  # and the mirror images
     assert make_policy(PolicySpec("tvf-large", turns=2)).search.gctn.turns == 2
+
+
+def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
+    from tvf.models.goal_mask import GoalMaskedGCTN
+    from tvf.models.symmetry import SymmetrizedGCTN
+
+    masked = make_policy(PolicySpec("tvf-large", goal_mask=True)).search.gctn
+    assert isinstance(masked, SymmetrizedGCTN) and isinstance(masked.gctn, GoalMaskedGCTN)
+    assert isinstance(make_policy(PolicySpec("gctn", goal_mask=True, turns=1)).model, GoalMaskedGCTN)
+    assert not isinstance(make_policy(PolicySpec("gctn")).model.gctn, GoalMaskedGCTN)  # off by default
+    with pytest.raises(TvfError, match="oracle has no GCTN to mask; --goal-mask needs gctn"):
+        make_policy(PolicySpec("oracle", goal_mask=True))
 
 
 def test_labels_and_unknown_methods():

@@ -44,6 +44,7 @@ def test_the_run_records_each_episodes_content(own_data, tmp_path):
     assert all(len(v) == 16 for v in record["episodes"].values()) and len(record["digest"]) == 16
 
 
+@pytest.mark.slow  # make test-all
 def test_a_changed_episode_is_named_and_refused_and_restart_trains_from_zero(own_data, tmp_path):
     cfg = config(own_data, tmp_path / "run", steps=2)
     train(cfg, gctn_job(cfg))
@@ -77,6 +78,7 @@ def test_a_changed_validation_episode_is_named(own_data, tmp_path):
         train(resumed, gctn_job(resumed))
 
 
+@pytest.mark.slow  # make test-all
 def test_a_run_from_before_contents_were_recorded_resumes(own_data, tmp_path):
     cfg = config(own_data, tmp_path / "run", steps=2)
     train(cfg, gctn_job(cfg))

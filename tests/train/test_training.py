@@ -206,6 +206,7 @@ def test_changed_pixel_loss_is_recorded_resumes_only_with_itself_and_rejects_bad
             train(replace(cfg, vf_changed_weight=bad), vf_job(cfg))
 
 
+@pytest.mark.slow  # make test-all
 def test_symmetrised_training_starts_from_given_weights_and_is_recorded(data_root, tmp_path):
     base = config(data_root, tmp_path / "base", steps=2)
     train(base, gctn_job(base))

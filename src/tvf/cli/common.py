@@ -39,7 +39,8 @@ class PlannerFlags:
     """TVF with nms or several picks: pixels between proposals (default 13, about one block)."""
     turns: int | None = None
     """GCTN and TVF: average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (exact C4
-    equivariance at 4x the GCTN's cost; 1: the paper's)."""
+    equivariance at 4x the GCTN's cost; 1: the paper's), or 8: the four turns and their mirror images
+    (D4, 8x)."""
     turns_depth: int | None = None
     """TVF with --turns: the search levels, from the root, that use the symmetrised GCTN; deeper ones use
     the plain GCTN (1 = the root's proposals only)."""
@@ -47,6 +48,13 @@ class PlannerFlags:
     """TVF: root actions whose best imagined outcome scores within TIE_BAND of the best are ties, and the
     GCTN's order decides (default 0: the best score wins, the paper's). 0.001 is about a fifteenth of a
     misplaced block (docs/planner.md; measured in docs/real-robot.md)."""
+    root_k: int | None = None
+    """TVF: proposals of the real state, the first actions the search tries (default: K, as every node,
+    the paper's). A wide root over a narrow tree, e.g. --root-k 6 --k 2, costs about as much as K 3."""
+    goal_mask: bool = False
+    """GCTN and TVF: pick only where the scene stands half a block above the goal, place only where the
+    goal stands half a block above the scene (the two height maps compared; no training; default off,
+    the paper's GCTN)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -55,7 +63,8 @@ class PlannerFlags:
 
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
-            self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band,
+            self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
+            self.goal_mask or None,
         )  # fmt: skip
 
 

@@ -139,7 +139,11 @@ class PlanCmd:
     """Workspace file (bounds in the base frame, pixel size; docs/real-robot.md); default:
     VIEWS/workspace.yaml when the views are a folder that has one, else today's workspace."""
     turns: int | None = None
-    """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene (default: the method's)."""
+    """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene, or 8 (and their mirror images);
+    default: the method's."""
+    goal_mask: bool = False
+    """Mask the GCTN's maps by the height difference to the goal (docs/planner.md; default off, the
+    paper's)."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
@@ -184,7 +188,8 @@ class PlanCmd:
         goal = load_rgbh(self.goal, ws, "--goal", self.hole_fill)
         search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
-                               keep_images=True, turns=self.turns, **search)  # fmt: skip
+                               keep_images=True, turns=self.turns, goal_mask=self.goal_mask or None,
+                               **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)
         for name, pose in (("pick", poses[0]), ("place", poses[1])):

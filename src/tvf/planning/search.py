@@ -72,16 +72,23 @@ class PlannerConfig:
     """Root actions whose best node scores within this of the tree's best are ties, decided by the
     order of the root proposals (the GCTN's); 0: the best node's action, the paper's rule. One
     misplaced block moves a score by about 0.015; sub-millimetre sensor changes move it by about 1e-4."""
+    root_k: int | None = None
+    """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
+    A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
+    did worse on validation seeds: docs/results.md)."""
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
             raise ValueError(f"planner needs k >= 1 and depth >= 1, got k={self.k}, depth={self.depth}")
         if self.proposals not in RULES:
             raise ValueError(f"unknown proposal rule {self.proposals!r}; choose one of {', '.join(RULES)}")
-        if not 1 <= self.pick_branches <= self.k:
+        if self.root_k is not None and self.root_k < 1:
+            raise ValueError(f"root_k must be None or at least 1, got {self.root_k}")
+        if not 1 <= self.pick_branches <= self.widest:
+            bound = "k" if self.widest == self.k else "root_k"
             raise ValueError(
-                f"pick_branches must be between 1 and k = {self.k} (the picks share the K proposals), "
-                f"got {self.pick_branches}"
+                f"pick_branches must be between 1 and {bound} = {self.widest} (the picks share the K "
+                f"proposals), got {self.pick_branches}"
             )
         if not (math.isfinite(self.nms_radius) and self.nms_radius > 0):
             raise ValueError(f"nms_radius must be a positive number of pixels, got {self.nms_radius}")
@@ -93,6 +100,19 @@ class PlannerConfig:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
         if not (math.isfinite(self.tie_band) and self.tie_band >= 0):
             raise ValueError(f"tie_band must be a score difference >= 0, got {self.tie_band}")
+
+    @property
+    def widest(self) -> int:
+        """The most proposals any node has (``k``, or ``root_k`` when wider)."""
+        return max(self.k, self.root_k or 0)
+
+    def k_at(self, level: int) -> int:
+        """Proposals per node at ``level`` (1: the root's children)."""
+        return self.root_k if level == 1 and self.root_k is not None else self.k
+
+    def pick_branches_at(self, level: int) -> int:
+        """Distinct picks per node at ``level``: ``pick_branches``, at most that level's K."""
+        return min(self.pick_branches, self.k_at(level))
 
 
 @dataclass
@@ -230,12 +250,13 @@ class TreeSearch:
             return self.gctn.gctn, self.gctn.plain_goal_features(goal_features)
         return self.gctn, goal_features
 
-    def _picks(self, pick_logits: torch.Tensor) -> list[np.ndarray]:
+    def _picks(self, pick_logits: torch.Tensor, level: int) -> list[np.ndarray]:
         """Each state's picks (n_i, 2), best first: the argmax, then further distinct picks."""
         cfg = self.config
-        if cfg.pick_branches == 1:
+        branches = cfg.pick_branches_at(level)
+        if branches == 1:
             return [p[None] for p in argmax_pixels(pick_logits).cpu().numpy()]
-        return [pick_peaks(x, cfg.pick_branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
+        return [pick_peaks(x, branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
 
     @torch.no_grad()
     def _propose(self, frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor, level: int,
@@ -248,21 +269,21 @@ class TreeSearch:
         for part in self._parts(roots, mix):
             rows = self._root_rows(roots, part)
             logits = gctn.pick_logits(states[part], goals[rows])
-            sets = self._picks(logits)
+            sets = self._picks(logits, level)
             width = max(len(s) for s in sets)  # states with fewer picks repeat their best one
             padded = np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
             features = _goal_rows(goal_features, rows)
-            maps = gctn.place_maps(states[part], None, torch.as_tensor(padded), features)
+            maps = gctn.place_maps(states[part], goals[rows], torch.as_tensor(padded), features)
             places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]
             picks += sets
             pick_logits.append(logits)
         return picks, places, torch.cat(pick_logits)
 
-    def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor) -> Proposals:
+    def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor, level: int) -> Proposals:
         cfg = self.config
         period = place_logits.shape[1] * 360.0 / self.n_rotations  # degrees the channels cover
         return node_proposals(
-            place_logits, picks, cfg.k, rule=cfg.proposals, alpha=cfg.alpha, top_n=cfg.top_n,
+            place_logits, picks, cfg.k_at(level), rule=cfg.proposals, alpha=cfg.alpha, top_n=cfg.top_n,
             seed=cfg.seed, radius=cfg.nms_radius, rotation_tolerance=cfg.nms_rotation, period=period,
         )  # fmt: skip
 
@@ -318,7 +339,7 @@ class TreeSearch:
         and return them, the next frontier."""
         cfg = self.config
         picks, place_logits, pick_logits = self._propose(frontier, goals, goal_features, level, mix)
-        proposals = [self._proposals(p, m) for p, m in zip(picks, place_logits, strict=True)]
+        proposals = [self._proposals(p, m, level) for p, m in zip(picks, place_logits, strict=True)]
         if level == 1:  # one row per root
             for plan, logits, maps, props in zip(plans, pick_logits, place_logits, proposals, strict=True):
                 plan.pick_logits, plan.place_logits, plan.root_proposals = logits, maps[0], props

@@ -13,13 +13,14 @@ import torch
 from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
+from tvf.models.goal_mask import goal_masked
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig
 from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 
 PLANNER_OPTIONS = (
-    "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band"
+    "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k"
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -45,7 +46,8 @@ class PolicySpec:
     pick_branches: int | None = None
     """Distinct picks a node branches over (1 = the argmax pick only)."""
     turns: int | None = None
-    """Quarter turns of the scene the GCTN's maps are averaged over (1, 2 or 4; docs/planner.md)."""
+    """Quarter turns of the scene the GCTN's maps are averaged over (1, 2, 4, or 8
+    with their mirror images; docs/planner.md)."""
     turns_depth: int | None = None
     """TVF: the search levels, from the root, that use the symmetrised GCTN (the rest: the plain one)."""
     alpha: float | None = None
@@ -54,6 +56,11 @@ class PolicySpec:
     """TVF: pixels between NMS proposals and between branched picks."""
     tie_band: float | None = None
     """TVF: root actions scoring within this of the best are ties, decided by the GCTN's order."""
+    root_k: int | None = None
+    """TVF: proposals of the real state (None: K, as every node)."""
+    goal_mask: bool | None = None
+    """Mask the GCTN's maps by the height difference to the goal (:mod:`tvf.models.goal_mask`; None: the
+    method's, off for every method, the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -78,6 +85,8 @@ class Method:
     """It reads the simulator (the oracle); learned methods act from images alone."""
     turns: int = 1
     """Test-time symmetrisation of its GCTN (:mod:`tvf.models.symmetry`; 1 = none, the paper)."""
+    goal_mask: bool = False
+    """Its GCTN's maps masked by the height difference to the goal (:mod:`tvf.models.goal_mask`)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -89,9 +98,12 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
 
 
 def _load_gctn(spec: PolicySpec):
-    """The spec's GCTN, symmetrised over its turns (the method's unless the spec sets them)."""
-    turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
-    return symmetrized(load_trained(spec.gctn, "gctn"), turns)
+    """The spec's GCTN, goal-masked or not and symmetrised over its turns (the method's unless the spec
+    sets them)."""
+    method = get_method(spec.method)
+    turns = spec.turns if spec.turns is not None else method.turns
+    mask = spec.goal_mask if spec.goal_mask is not None else method.goal_mask
+    return symmetrized(goal_masked(load_trained(spec.gctn, "gctn"), mask), turns)
 
 
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -107,7 +119,8 @@ METHODS: dict[str, Method] = {
     for m in (
         Method("oracle", "oracle", _oracle, needs_env=True),
         # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
-        # proposals only), chosen on validation seeds (docs/results.md); the paper's is --turns 1
+        # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
+        # (docs/results.md); the paper's is --turns 1
         Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4),
         Method(
             "tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1, turns_depth=1), turns=4
@@ -120,7 +133,7 @@ METHODS: dict[str, Method] = {
             _tvf,
             ("gctn", "vf"),
             PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1),
-            turns=4,
+            turns=8,
         ),
     )
 }
@@ -147,7 +160,8 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
         raise TvfError(f"{spec.method} does not plan; planner methods are {', '.join(PLANNER_METHODS)}")
     changes = spec.planner_overrides()
     if "k" in changes and "pick_branches" not in changes:  # a smaller K shares fewer picks
-        changes["pick_branches"] = max(1, min(method.planner.pick_branches, changes["k"]))
+        widest = max(changes["k"], changes.get("root_k") or method.planner.root_k or 0)
+        changes["pick_branches"] = max(1, min(method.planner.pick_branches, widest))
     try:
         return replace(method.planner, **changes)
     except ValueError as exc:
@@ -165,6 +179,8 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
                 f"{spec.method} has no GCTN to symmetrise; --turns needs gctn, tvf-small or tvf-large"
             )
         check_turns(spec.turns)
+    if spec.goal_mask and "gctn" not in method.models:
+        raise TvfError(f"{spec.method} has no GCTN to mask; --goal-mask needs gctn, tvf-small or tvf-large")
     return method.build(spec, env, pick_device(spec.device))
 
 

@@ -46,9 +46,9 @@ class TrainConfig:
     reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss"); default: the preset's
     recipe."""
     turns: int | None = None
-    """GCTN only: train the GCTN's maps averaged over 1, 2 or 4 quarter turns of the scene, the maps that
-    `--turns` plans with (tvf.models.symmetry): its weights then learn under the exactly equivariant loss;
-    each step costs about TURNS plain steps; default 1 (the paper's)."""
+    """GCTN only: train the GCTN's maps averaged over 1, 2 or 4 quarter turns of the scene (8: and their
+    mirror images), the maps that `--turns` plans with (tvf.models.symmetry): its weights then learn
+    under the exactly equivariant loss; each step costs about TURNS plain steps; default 1 (the paper's)."""
     init: Path | None = None
     """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
     file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""
