@@ -9,7 +9,8 @@ they exist (realistic proposal counts); other presets use seeded random weights.
 e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching over P picks; a further
 ``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``, and ``+tdepthD`` does so at
 the first D levels only, ``--turns-depth``; ``+rootR``, ``+kK`` and ``+depthD`` set ``--root-k``, ``--k`` and
-``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree).
+``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree; ``+mask``
+adds ``--goal-mask``).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -24,6 +25,7 @@ import torch
 
 from common import best_seconds
 from tvf.models.gctn import GCTN
+from tvf.models.goal_mask import goal_masked
 from tvf.models.images import to_rgbh
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import symmetrized
@@ -59,12 +61,13 @@ def first_observation(task: str, seed: int = 1):
     return to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
 
 
-def rule_config(rule: str) -> tuple[dict, int]:
-    """PlannerConfig fields and GCTN turns of a rule name: kmeans | nms | nms+picksP, each optionally
-    +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR, +kK, +depthD."""
+def rule_config(rule: str) -> tuple[dict, int, bool]:
+    """PlannerConfig fields, GCTN turns and goal mask of a rule name: kmeans | nms | nms+picksP, each
+    optionally +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR,
+    +kK, +depthD, +mask (tvf.models.goal_mask)."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
-    turns = 1
+    turns, mask = 1, False
     for option in options:
         if option.startswith("picks"):
             fields["pick_branches"] = int(option[len("picks") :])
@@ -72,6 +75,8 @@ def rule_config(rule: str) -> tuple[dict, int]:
             turns = int(option[len("turns") :])
         elif option.startswith("tdepth"):
             fields["turns_depth"] = int(option[len("tdepth") :])
+        elif option == "mask":
+            mask = True
         elif option.startswith("root"):
             fields["root_k"] = int(option[len("root") :])
         elif option.startswith("depth"):
@@ -80,10 +85,10 @@ def rule_config(rule: str) -> tuple[dict, int]:
             fields["k"] = int(option[len("k") :])
         else:
             raise SystemExit(
-                f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK "
-                "or +depthD"
+                f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK, "
+                "+depthD or +mask"
             )
-    return fields, turns
+    return fields, turns, mask
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str]) -> dict:
@@ -105,8 +110,9 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         row["speedup"] = row["node_by_node_s"] / row["batched_s"]
         out[name] = row
     for rule in rules:
-        fields, turns = rule_config(rule)
-        search = TreeSearch(symmetrized(gctn, turns), vf, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
+        fields, turns, mask = rule_config(rule)
+        model = symmetrized(goal_masked(gctn, mask), turns)
+        search = TreeSearch(model, vf, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
         seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
         out[f"tvf-large/{rule}"] = {"batched_s": seconds, "counts": search.search(current, goal).counts}
     return out

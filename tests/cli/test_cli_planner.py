@@ -187,6 +187,27 @@ def test_eval_with_turns_records_them_and_refuses_them_without_a_gctn(capsys, tm
     assert code == 2 and "oracle has no GCTN to symmetrise" in err
 
 
+def test_eval_records_the_resolved_goal_mask_and_refuses_to_resume_an_unmasked_folder(
+    capsys, tmp_path, smoke_weights
+):
+    args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1")
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))
+    assert code == 0, err
+    meta_path = tmp_path / "e" / "eval.json"
+    meta = json.loads(meta_path.read_text())
+    assert meta["goal_mask"] is True  # the GCTN's default, resolved
+    del meta["goal_mask"]  # a folder from before the flag: its GCTN was unmasked
+    meta_path.write_text(json.dumps(meta))
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))
+    assert code == 2 and "other goal_mask" in err
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", *args,
+                       "--out", str(tmp_path / "e"))  # fmt: skip
+    assert code == 0, err  # the paper's unmasked GCTN resumes it
+    oracle = ("eval", "--method", "oracle", "--goal-mask", "True", "--out", str(tmp_path / "o"))
+    code, _, err = run(capsys, *oracle)
+    assert code == 2 and "oracle has no GCTN to mask" in err
+
+
 def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_path, smoke_weights):
     weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
     roots = {}

@@ -50,23 +50,28 @@ def test_the_spec_turns_choose_the_symmetrised_gctn():
     from tvf.models.gctn import GCTN
     from tvf.models.symmetry import SymmetrizedGCTN
 
-    default, paper = make_policy(PolicySpec("gctn")), make_policy(PolicySpec("gctn", turns=1))
+    paper = make_policy(PolicySpec("gctn", turns=1, goal_mask=False))
+    default = make_policy(PolicySpec("gctn"))
     assert isinstance(default.model, SymmetrizedGCTN) and default.model.turns == 4
     assert type(paper.model) is GCTN
     assert make_policy(PolicySpec("tvf-small")).search.gctn.turns == 4  # every method's default now
-    assert type(make_policy(PolicySpec("tvf-small", turns=1)).search.gctn) is GCTN
+    assert type(make_policy(PolicySpec("tvf-small", turns=1, goal_mask=False)).search.gctn) is GCTN
     assert make_policy(PolicySpec("tvf-large")).search.gctn.turns == 8  # and the mirror images
     assert make_policy(PolicySpec("tvf-large", turns=2)).search.gctn.turns == 2
 
 
 def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
+    from tvf.models.gctn import GCTN
     from tvf.models.goal_mask import GoalMaskedGCTN
     from tvf.models.symmetry import SymmetrizedGCTN
 
     masked = make_policy(PolicySpec("tvf-large", goal_mask=True)).search.gctn
     assert isinstance(masked, SymmetrizedGCTN) and isinstance(masked.gctn, GoalMaskedGCTN)
     assert isinstance(make_policy(PolicySpec("gctn", goal_mask=True, turns=1)).model, GoalMaskedGCTN)
-    assert not isinstance(make_policy(PolicySpec("gctn")).model.gctn, GoalMaskedGCTN)  # off by default
+    assert isinstance(make_policy(PolicySpec("gctn")).model.gctn, GoalMaskedGCTN)  # the GCTN's default
+    assert type(make_policy(PolicySpec("gctn", goal_mask=False)).model.gctn) is GCTN  # the paper's
+    assert isinstance(make_policy(PolicySpec("tvf-small")).search.gctn.gctn, GoalMaskedGCTN)
+    assert type(make_policy(PolicySpec("tvf-large")).search.gctn.gctn) is GCTN  # TVF-L did not gain
     with pytest.raises(TvfError, match="oracle has no GCTN to mask; --goal-mask needs gctn"):
         make_policy(PolicySpec("oracle", goal_mask=True))
 

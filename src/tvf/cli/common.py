@@ -51,10 +51,10 @@ class PlannerFlags:
     root_k: int | None = None
     """TVF: proposals of the real state, the first actions the search tries (default: K, as every node,
     the paper's). A wide root over a narrow tree, e.g. --root-k 6 --k 2, costs about as much as K 3."""
-    goal_mask: bool = False
-    """GCTN and TVF: pick only where the scene stands half a block above the goal, place only where the
-    goal stands half a block above the scene (the two height maps compared; no training; default off,
-    the paper's GCTN)."""
+    goal_mask: bool | None = None
+    """GCTN and TVF: True picks only where the scene stands half a block above the goal and places only
+    where the goal stands half a block above the scene (the two height maps compared; no training;
+    docs/planner.md); False: the paper's unmasked GCTN; default: the method's."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -64,7 +64,7 @@ class PlannerFlags:
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
-            self.goal_mask or None,
+            self.goal_mask,
         )  # fmt: skip
 
 

@@ -141,9 +141,9 @@ class PlanCmd:
     turns: int | None = None
     """Average the GCTN's maps over 1, 2 or 4 quarter turns of the scene, or 8 (and their mirror images);
     default: the method's."""
-    goal_mask: bool = False
-    """Mask the GCTN's maps by the height difference to the goal (docs/planner.md; default off, the
-    paper's)."""
+    goal_mask: bool | None = None
+    """True / False: mask the GCTN's maps by the height difference to the goal or not (False: the
+    paper's; docs/planner.md); default: the method's."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
@@ -188,7 +188,7 @@ class PlanCmd:
         goal = load_rgbh(self.goal, ws, "--goal", self.hole_fill)
         search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
-                               keep_images=True, turns=self.turns, goal_mask=self.goal_mask or None,
+                               keep_images=True, turns=self.turns, goal_mask=self.goal_mask,
                                **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)

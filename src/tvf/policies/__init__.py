@@ -9,6 +9,7 @@ from tvf.policies.registry import (
     PolicySpec,
     forget_cached_policies,
     get_method,
+    goal_mask_of,
     label,
     make_policy,
     planner_of,
@@ -17,6 +18,6 @@ from tvf.policies.registry import (
 
 __all__ = [
     "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
-    "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "label",
-    "make_policy", "planner_of", "policy_for",
+    "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "goal_mask_of",
+    "label", "make_policy", "planner_of", "policy_for",
 ]  # fmt: skip

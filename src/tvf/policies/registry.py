@@ -100,10 +100,13 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
 def _load_gctn(spec: PolicySpec):
     """The spec's GCTN, goal-masked or not and symmetrised over its turns (the method's unless the spec
     sets them)."""
-    method = get_method(spec.method)
-    turns = spec.turns if spec.turns is not None else method.turns
-    mask = spec.goal_mask if spec.goal_mask is not None else method.goal_mask
-    return symmetrized(goal_masked(load_trained(spec.gctn, "gctn"), mask), turns)
+    turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
+    return symmetrized(goal_masked(load_trained(spec.gctn, "gctn"), goal_mask_of(spec)), turns)
+
+
+def goal_mask_of(spec: PolicySpec) -> bool:
+    """Whether ``spec``'s GCTN is goal-masked: the spec's choice, else its method's default."""
+    return spec.goal_mask if spec.goal_mask is not None else get_method(spec.method).goal_mask
 
 
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -121,9 +124,17 @@ METHODS: dict[str, Method] = {
         # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
         # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
         # (docs/results.md); the paper's is --turns 1
-        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4),
+        # GCTN and TVF-S: the GCTN's maps masked by the height difference to the goal (docs/results.md,
+        # "A goal-difference mask"; TVF-L did not gain from it); the paper's is --goal-mask False
+        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, goal_mask=True),
         Method(
-            "tvf-small", "TVF-S", _tvf, ("gctn", "vf"), PlannerConfig(k=2, depth=1, turns_depth=1), turns=4
+            "tvf-small",
+            "TVF-S",
+            _tvf,
+            ("gctn", "vf"),
+            PlannerConfig(k=2, depth=1, turns_depth=1),
+            turns=4,
+            goal_mask=True,
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
         # the paper's rule is --proposals kmeans --pick-branches 1 --turns 1
