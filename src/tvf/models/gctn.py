@@ -394,9 +394,7 @@ class GCTN(nn.Module):
 
         Without gradients, batches larger than :func:`inference_chunk` run in chunks (faster on CPU).
         """
-        b = current.shape[0]
-        pick = as_pixels(pick_pixels, b, current.shape[-2:]).to(current.device)
-        return self.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
+        return one_pick_place_map(self, current, goal, pick_pixels, goal_features)
 
     def place_maps(
         self,
@@ -481,3 +479,49 @@ def greedy_action(model, current: torch.Tensor, goal: torch.Tensor):
     place_logits = model.place_map(current, goal, pick)
     place, channel = argmax_places(place_logits)
     return pick, place, model.rotation_bins(channel), {"pick": pick_logits, "place": place_logits}
+
+
+def one_pick_place_map(model, current: torch.Tensor, goal: torch.Tensor | None, pick_pixels: torch.Tensor,
+                       goal_features: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
+    """``place_map`` for any model with ``place_maps``: its place logits (B, R, H, W) at one pick per
+    state, as P = 1 of ``place_maps``."""
+    pick = as_pixels(pick_pixels, current.shape[0], current.shape[-2:]).to(current.device)
+    return model.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
+
+
+class GctnWrapper(nn.Module):
+    """Base of the models that offer a wrapped GCTN's calls with changed maps (:mod:`tvf.models.symmetry`,
+    :mod:`tvf.models.goal_mask`): the checkpoint kind, preset, config, rotation bins and goal features are
+    the wrapped GCTN's; ``place_map`` and ``act`` follow from the subclass's ``pick_logits`` and
+    ``place_maps``."""
+
+    checkpoint_kind = "gctn"
+
+    def __init__(self, gctn: nn.Module) -> None:
+        super().__init__()
+        self.gctn = gctn
+        self.preset = gctn.preset
+
+    def config(self) -> dict:
+        return self.gctn.config()
+
+    def rotation_bins(self, channels: torch.Tensor) -> torch.Tensor:
+        return self.gctn.rotation_bins(channels)
+
+    def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
+        return self.gctn.goal_features(goal)
+
+    def place_map(
+        self,
+        current: torch.Tensor,
+        goal: torch.Tensor | None,
+        pick_pixels: torch.Tensor,
+        goal_features: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Place logits (B, R, H, W) at one pick per state (see :meth:`GCTN.place_map`)."""
+        return one_pick_place_map(self, current, goal, pick_pixels, goal_features)
+
+    @torch.no_grad()
+    def act(self, current: torch.Tensor, goal: torch.Tensor):
+        """Greedy action of the wrapper's maps (see :meth:`GCTN.act`)."""
+        return greedy_action(self, current, goal)

@@ -1,5 +1,6 @@
 """A goal-difference mask on the GCTN's maps: pick only where the scene stands above the goal, place only
-where the goal stands above the scene (``--goal-mask``; off by default, the paper's GCTN is unmasked).
+where the goal stands above the scene (``--goal-mask``; the default of ``gctn`` and ``tvf-small``;
+``--goal-mask False`` is the paper's unmasked GCTN).
 
 Both images are top-down height maps of the same workspace, so a block that sits where the goal has it
 already is not worth moving, and a place where the goal has nothing more than the scene is not worth
@@ -13,10 +14,9 @@ Pixel-wise, the mask commutes with the turns and mirrors of :mod:`tvf.models.sym
 from __future__ import annotations
 
 import torch
-from torch import nn
 
-from tvf.models.gctn import GCTN, greedy_action
-from tvf.models.images import HEIGHT_STD, as_pixels
+from tvf.models.gctn import GCTN, GctnWrapper
+from tvf.models.images import HEIGHT_STD
 
 MARGIN_M = 0.02
 """Half a block (4 cm): a height difference smaller than this is not a block to move or a hole to fill."""
@@ -58,40 +58,16 @@ def _require_goal(goal: torch.Tensor | None) -> torch.Tensor:
     return goal
 
 
-class GoalMaskedGCTN(nn.Module):
+class GoalMaskedGCTN(GctnWrapper):
     """A GCTN whose pick and place logits are masked by the height difference to the goal."""
 
-    checkpoint_kind = "gctn"
-
     def __init__(self, gctn: GCTN, margin: float = MARGIN_M) -> None:
-        super().__init__()
-        self.gctn = gctn
+        super().__init__(gctn)
         self.margin = margin
-        self.preset = gctn.preset
-
-    def config(self) -> dict:
-        return self.gctn.config()
-
-    def rotation_bins(self, channels: torch.Tensor) -> torch.Tensor:
-        return self.gctn.rotation_bins(channels)
-
-    def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
-        return self.gctn.goal_features(goal)
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The GCTN's pick logits (B, H, W), masked outside :func:`pick_allowed`."""
         return _masked(self.gctn.pick_logits(current, goal), pick_allowed(current, goal, self.margin))
-
-    def place_map(
-        self,
-        current: torch.Tensor,
-        goal: torch.Tensor | None,
-        pick_pixels: torch.Tensor,
-        goal_features: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Place logits (B, R, H, W) at one pick per state, masked outside :func:`place_allowed`."""
-        pick = as_pixels(pick_pixels, current.shape[0], current.shape[-2:])
-        return self.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
 
     def place_maps(
         self,
@@ -105,11 +81,6 @@ class GoalMaskedGCTN(nn.Module):
         goal = _require_goal(goal)
         maps = self.gctn.place_maps(current, goal, picks, goal_features)
         return _masked(maps, place_allowed(current, goal, self.margin))
-
-    @torch.no_grad()
-    def act(self, current: torch.Tensor, goal: torch.Tensor):
-        """Greedy action of the masked maps (see :meth:`GCTN.act`)."""
-        return greedy_action(self, current, goal)
 
 
 def goal_masked(gctn: GCTN, mask: bool) -> GCTN | GoalMaskedGCTN:

@@ -18,12 +18,10 @@ training never showed it a mirrored scene.
 from __future__ import annotations
 
 import torch
-from torch import nn
 
 from tvf.errors import TvfError
 from tvf.geometry import mirror_pixels, quarter_turn_pixels
-from tvf.models.gctn import GCTN, greedy_action, labelled_loss
-from tvf.models.images import as_pixels
+from tvf.models.gctn import GCTN, GctnWrapper, labelled_loss
 
 TURNS = (1, 2, 4, 8)
 """Symmetrisations: none, the half turn (C2), the four quarter turns (C4), and those with their mirror
@@ -80,24 +78,14 @@ def mirrored_channels(channels: int) -> torch.Tensor:
     return (-torch.arange(channels)) % channels
 
 
-class SymmetrizedGCTN(nn.Module):
+class SymmetrizedGCTN(GctnWrapper):
     """A GCTN whose pick and place logits are averaged over ``turns`` evenly spaced quarter turns (8: the
     four and their mirror images)."""
 
-    checkpoint_kind = "gctn"
-
     def __init__(self, gctn: GCTN, turns: int) -> None:
-        super().__init__()
-        self.gctn = gctn
+        super().__init__(gctn)
         self.turns = check_turns(turns)
-        self.preset = gctn.preset
         self.elements = group_elements(turns)
-
-    def config(self) -> dict:
-        return self.gctn.config()
-
-    def rotation_bins(self, channels: torch.Tensor) -> torch.Tensor:
-        return self.gctn.rotation_bins(channels)
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Pick logits (B, H, W), the mean over the turns of the GCTN's, turned back."""
@@ -114,18 +102,6 @@ class SymmetrizedGCTN(nn.Module):
     def plain_goal_features(self, stacked: torch.Tensor) -> torch.Tensor:
         """The plain GCTN's goal features from :meth:`goal_features`' stack (its unturned entry)."""
         return stacked[self.elements.index((0, False))]
-
-    def place_map(
-        self,
-        current: torch.Tensor,
-        goal: torch.Tensor | None,
-        pick_pixels: torch.Tensor,
-        goal_features: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Place logits (B, R, H, W) at one pick per state (see :meth:`GCTN.place_map`)."""
-        b = current.shape[0]
-        pick = as_pixels(pick_pixels, b, current.shape[-2:])
-        return self.place_maps(current, goal, pick[:, None], goal_features)[:, 0]
 
     def place_maps(
         self,
@@ -164,11 +140,6 @@ class SymmetrizedGCTN(nn.Module):
     ) -> dict[str, torch.Tensor]:  # fmt: skip
         """:meth:`GCTN.loss` of the symmetrised maps (gradients reach the wrapped GCTN through every turn)."""
         return labelled_loss(self, current, goal, pick_pixels, place_pixels, rot_bins)
-
-    @torch.no_grad()
-    def act(self, current: torch.Tensor, goal: torch.Tensor):
-        """Greedy action of the symmetrised maps (see :meth:`GCTN.act`)."""
-        return greedy_action(self, current, goal)
 
 
 def symmetrized(gctn: GCTN, turns: int) -> GCTN | SymmetrizedGCTN:

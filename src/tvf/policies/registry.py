@@ -60,7 +60,7 @@ class PolicySpec:
     """TVF: proposals of the real state (None: K, as every node)."""
     goal_mask: bool | None = None
     """Mask the GCTN's maps by the height difference to the goal (:mod:`tvf.models.goal_mask`; None: the
-    method's, off for every method, the paper's)."""
+    method's, ``Method.goal_mask``; False: the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
