@@ -200,3 +200,15 @@ def test_an_unreachable_or_malformed_cluster_address_is_one_line_at_once():
     assert time.monotonic() - start < 5
     with pytest.raises(TvfError, match="--address must be HOST:PORT"):
         check_reachable("head-node")
+
+
+def test_a_job_in_this_process_takes_its_threads_from_omp_num_threads(monkeypatch):
+    from tvf.parallel import lone_process_threads
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # two such jobs sharing two cores: one thread each
+    assert lone_process_threads() == 1
+    for unset in ("", "0", "many"):
+        monkeypatch.setenv("OMP_NUM_THREADS", unset)
+        assert lone_process_threads() == max(1, os.cpu_count() or 1)
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert lone_process_threads() == max(1, os.cpu_count() or 1)

@@ -55,6 +55,13 @@ def init_worker(threads: int = 1, parent: int | None = None) -> None:
         threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
 
 
+def lone_process_threads() -> int:
+    """Torch threads of a job run in this process (``--workers 1``): ``OMP_NUM_THREADS`` when it is set
+    (several such jobs sharing the cores each want 1), else every core."""
+    value = os.environ.get("OMP_NUM_THREADS", "")
+    return int(value) if value.isdigit() and int(value) > 0 else max(1, os.cpu_count() or 1)
+
+
 def _exit_with_parent(parent: int, every: float = 0.5) -> None:
     """Watch the parent: a worker whose parent died (killed, even with SIGKILL) is reparented; it exits."""
     while os.getppid() == parent:
@@ -262,7 +269,7 @@ def run_jobs(
     bar = tqdm(total=len(jobs), desc=desc, unit="ep", disable=not progress, dynamic_ncols=True)
     try:
         if workers <= 1 and backend == "local":
-            init_worker(threads=max(1, os.cpu_count() or 1))
+            init_worker(threads=lone_process_threads())
             for job in jobs:
                 yield fn(*job)
                 bar.update()
