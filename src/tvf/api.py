@@ -80,14 +80,16 @@ class Planner:
 
 def load_planner(
     method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
-    keep_images: bool = False, turns: int | None = None, goal_mask: bool | None = None, **planner,
+    keep_images: bool = False, turns: int | None = None, goal_mask: bool | None = None,
+    mask_places: str | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
     pick_branches, turns_depth, tie_band, root_k; docs/planner.md); ``keep_images`` keeps a TVF plan's
     imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the GCTN over quarter turns of the scene
     (default: the method's); ``goal_mask`` True masks the GCTN's maps by the height difference to the goal
-    (:mod:`tvf.models.goal_mask`; default: the method's). Errors name the bad argument or file in one line."""
+    (:mod:`tvf.models.goal_mask`; default: the method's) and ``mask_places`` (gap, centred, bottom-up,
+    ordered) narrows its places (default: the method's). Errors name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
@@ -96,7 +98,16 @@ def load_planner(
         raise TvfError(f"unknown planner option {unknown[0]!r}; choose one of {', '.join(PLANNER_OPTIONS)}")
     if planner and method not in PLANNER_METHODS:
         raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
-    spec = PolicySpec(method, gctn=gctn, vf=vf, device=device, turns=turns, goal_mask=goal_mask, **planner)
+    spec = PolicySpec(
+        method,
+        gctn=gctn,
+        vf=vf,
+        device=device,
+        turns=turns,
+        goal_mask=goal_mask,
+        mask_places=mask_places,
+        **planner,
+    )
     policy = make_policy(spec)
     if hasattr(policy, "keep_images"):
         policy.keep_images = keep_images

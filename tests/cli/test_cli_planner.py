@@ -211,10 +211,11 @@ def test_eval_records_the_resolved_goal_mask_and_refuses_to_resume_an_unmasked_f
 def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_path, smoke_weights):
     weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
     roots = {}
-    for alpha in ("1", "1e-9"):
+    for alpha in ("1", "1e-9"):  # unmasked: the goal mask would leave these places fewer candidates
         code, _, err = run(
             capsys, "viz", "plan", "--task", "stack-stair", "--out", str(tmp_path / alpha), "--alpha", alpha,
-            "--nms-radius", "6.4", "--k", "3", "--depth", "1", "--pick-branches", "1", *weights,
+            "--nms-radius", "6.4", "--k", "3", "--depth", "1", "--pick-branches", "1", "--goal-mask", "False",
+            *weights,
         )  # fmt: skip
         assert code == 0, err
         roots[alpha] = len(json.loads((tmp_path / alpha / "plan.json").read_text())["nodes"])
@@ -232,3 +233,18 @@ def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_pat
         assert code == 2 and "alpha must be in (0, 1]" in err and "--alpha" in err, err
         code, _, err = run(capsys, *command, "--nms-radius", "-1", *weights, "--out", str(tmp_path / "bad"))
         assert code == 2 and "nms_radius must be a positive number" in err, err
+
+
+def test_eval_records_the_mask_places_and_refuses_to_resume_with_another_rule(
+    capsys, tmp_path, smoke_weights
+):
+    args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1",
+            "--out", str(tmp_path / "e"))  # fmt: skip
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--mask-places", "ordered", *args)
+    assert code == 0, err
+    assert json.loads((tmp_path / "e" / "eval.json").read_text())["mask_places"] == "ordered"
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args)
+    assert code == 2 and "other mask_places" in err  # the default rule (gap) is another evaluation
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", "--mask-places", "ordered",
+                       *args)  # fmt: skip
+    assert code == 2 and "add --goal-mask True" in err

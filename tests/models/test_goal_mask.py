@@ -7,7 +7,14 @@ import torch
 from model_scenes import BLOCK, draw_blocks
 
 from tvf.models.gctn import GCTN
-from tvf.models.goal_mask import MASKED_LOGIT, GoalMaskedGCTN, goal_masked, pick_allowed, place_allowed
+from tvf.models.goal_mask import (
+    MASKED_LOGIT,
+    GoalMaskedGCTN,
+    centred_places,
+    goal_masked,
+    pick_allowed,
+    place_allowed,
+)
 from tvf.models.images import to_rgbh
 from tvf.models.presets import SMOKE
 from tvf.models.symmetry import SymmetrizedGCTN
@@ -87,3 +94,55 @@ def test_the_masked_gctn_refuses_features_without_the_goal_image() -> None:
     current, goal = _scene()
     with pytest.raises(ValueError, match="needs the goal image"):
         masked.place_maps(current, None, torch.tensor([[list(LOOSE)]]), masked.goal_features(goal))
+
+
+def _stacked(blocks: list[tuple[int, int, int]]) -> torch.Tensor:
+    """An RGB-H image of 13-pixel blocks at (row, col, layer), drawn bottom layer first."""
+    color, height = draw_blocks([])
+    half = BLOCK // 2
+    for r, c, layer in sorted(blocks, key=lambda b: b[2]):
+        window = (slice(r - half, r + half + 1), slice(c - half, c + half + 1))
+        height[window] = 0.04 * (layer + 1)
+        color[window] = torch.tensor([255.0, 87.0, 89.0])
+    return to_rgbh(color, height)
+
+
+# stack-building's shape: two columns of two blocks 16 px (5 cm) apart and one block bridging them
+LEFT, RIGHT, BRIDGE = (80, 64), (80, 80), (80, 72)
+BUILDING = [(*LEFT, 0), (*RIGHT, 0), (*LEFT, 1), (*RIGHT, 1), (*BRIDGE, 2)]
+
+
+def test_bottom_up_places_finish_the_columns_before_the_bridge_across_them() -> None:
+    goal = _stacked(BUILDING)
+    ground_floor = _stacked(BUILDING[:2])
+    gap = place_allowed(ground_floor, goal)[0]
+    ordered = place_allowed(ground_floor, goal, rule="bottom-up")[0]
+    assert gap[BRIDGE] and not ordered[BRIDGE]  # the bridge would land a layer too low now
+    assert ordered[LEFT] and ordered[RIGHT] and (ordered <= gap).all()
+    columns = _stacked(BUILDING[:4])
+    assert place_allowed(columns, goal, rule="bottom-up")[0][BRIDGE]  # both columns stand: its turn
+    empty = _stacked([])  # nothing one block finishes yet (every column is two high): no narrowing
+    assert torch.equal(place_allowed(empty, goal, rule="bottom-up"), place_allowed(empty, goal))
+
+
+def test_centred_places_are_the_middles_of_the_regions_to_fill() -> None:
+    current, goal = _scene()
+    centred = place_allowed(current, goal, rule="centred")[0]
+    rows, cols = torch.nonzero(centred, as_tuple=True)
+    assert centred[TARGET] and (rows - TARGET[0]).abs().max() <= 1 and (cols - TARGET[1]).abs().max() <= 1
+    assert not centred[TARGET[0], TARGET[1] + 3]  # inside the target cell, but off its middle
+    both = centred_places(torch.ones(2, 160, 160, dtype=torch.bool))  # nothing to fill: all but the rim
+    assert both[:, 80, 80].all() and not both[:, 0, 0].any()
+
+
+def test_ordered_places_are_centred_and_bottom_up_and_an_unknown_rule_is_refused() -> None:
+    goal, ground_floor = _stacked(BUILDING), _stacked(BUILDING[:2])
+    ordered = place_allowed(ground_floor, goal, rule="ordered")[0]
+    assert ordered[LEFT] and ordered[RIGHT] and not ordered[BRIDGE]
+    assert (ordered <= place_allowed(ground_floor, goal, rule="centred")[0]).all()
+    masked = GoalMaskedGCTN(GCTN(QUARTER, seed=3).eval(), places="ordered")
+    with torch.no_grad():
+        _, place, _, _ = masked.act(ground_floor, goal)
+    assert ordered[tuple(place[0].tolist())]
+    with pytest.raises(ValueError, match="unknown place rule 'tallest'; choose one of gap, centred"):
+        place_allowed(ground_floor, goal, rule="tallest")

@@ -76,6 +76,16 @@ def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
         make_policy(PolicySpec("oracle", goal_mask=True))
 
 
+def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
+    ordered = make_policy(PolicySpec("tvf-large", goal_mask=True, mask_places="ordered")).search.gctn.gctn
+    assert ordered.places == "ordered" and make_policy(PolicySpec("gctn")).model.gctn.places == "gap"
+    assert make_policy(PolicySpec("gctn", mask_places="centred", turns=1)).model.places == "centred"
+    with pytest.raises(TvfError, match="unknown --mask-places 'tallest'; choose one of gap, centred"):
+        make_policy(PolicySpec("gctn", mask_places="tallest"))
+    with pytest.raises(TvfError, match="tvf-large does not use here; add --goal-mask True"):
+        make_policy(PolicySpec("tvf-large", mask_places="ordered"))  # TVF-L is unmasked by default
+
+
 def test_labels_and_unknown_methods():
     assert [label(m) for m in METHODS] == ["oracle", "GCTN", "TVF-S", "TVF-L"]
     assert label("my-method") == "my-method"

@@ -55,6 +55,10 @@ class PlannerFlags:
     """GCTN and TVF: True picks only where the scene stands half a block above the goal and places only
     where the goal stands half a block above the scene (the two height maps compared; no training;
     docs/planner.md); False: the paper's unmasked GCTN; default: the method's."""
+    mask_places: str | None = None
+    """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
+    of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
+    ordered (centred, then bottom-up); default: the method's (docs/planner.md)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -64,7 +68,7 @@ class PlannerFlags:
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
-            self.goal_mask,
+            self.goal_mask, self.mask_places,
         )  # fmt: skip
 
 

@@ -144,6 +144,9 @@ class PlanCmd:
     goal_mask: bool | None = None
     """True / False: mask the GCTN's maps by the height difference to the goal or not (False: the
     paper's; docs/planner.md); default: the method's."""
+    mask_places: str | None = None
+    """With the goal mask: gap | centred | bottom-up | ordered, the places it keeps (docs/planner.md);
+    default: the method's."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
@@ -189,6 +192,7 @@ class PlanCmd:
         search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
                                keep_images=True, turns=self.turns, goal_mask=self.goal_mask,
+                               mask_places=self.mask_places,
                                **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)

@@ -8,18 +8,31 @@ filling. :class:`GoalMaskedGCTN` wraps a GCTN and pushes its pick logits down wh
 does not exceed the goal's by :data:`MARGIN_M`, and its place logits where the goal's does not exceed the
 current one by as much. It needs no training and reads nothing but the two RGB-H images (the imagined
 ones inside the search too). A state where the mask would forbid every pixel keeps its unmasked map.
-Pixel-wise, the mask commutes with the turns and mirrors of :mod:`tvf.models.symmetry`, which wraps it.
+``--mask-places`` narrows the places further (:data:`PLACE_RULES`): to the middles of the regions to fill,
+and to the places one block finishes before those that need another block under them first (a bridge
+waits for its two columns). Pixel-wise and with square windows, the mask commutes with the turns and
+mirrors of :mod:`tvf.models.symmetry`, which wraps it.
 """
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from tvf.models.gctn import GCTN, GctnWrapper
 from tvf.models.images import HEIGHT_STD
 
 MARGIN_M = 0.02
 """Half a block (4 cm): a height difference smaller than this is not a block to move or a hole to fill."""
+
+BLOCK_M = 0.04
+"""A block's height."""
+
+FOOTPRINT_PX = 13
+"""A block's footprint in pixels (4 cm at 3.125 mm): the window a placed block covers and rests on."""
+
+CENTRED_SHARE = 0.9
+"""A centred place's footprint holds at least this share of the allowed pixels of the best-filled one."""
 
 MASKED_LOGIT = -1.0e4
 """The logit of a masked pixel: far below any the GCTN produces, so its softmax share is zero."""
@@ -41,9 +54,52 @@ def pick_allowed(current: torch.Tensor, goal: torch.Tensor, margin: float = MARG
     return _allowed(_height_gap(current, goal), margin)
 
 
-def place_allowed(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
-    """Where the goal stands more than ``margin`` above the scene: a block the scene still lacks."""
-    return _allowed(_height_gap(goal, current), margin)
+PLACE_RULES = ("gap", "centred", "bottom-up", "ordered")
+"""Which places the mask keeps (``--mask-places``): ``gap`` every pixel where the goal stands half a block
+above the scene; ``centred`` only those whose block footprint lies (almost) wholly in such a region
+(:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
+(:func:`finishing_places`); ``ordered`` both, centred first."""
+
+
+def check_place_rule(rule: str) -> str:
+    """``rule`` if it is one of :data:`PLACE_RULES`, else a one-line error naming them."""
+    if rule not in PLACE_RULES:
+        raise ValueError(f"unknown place rule {rule!r}; choose one of {', '.join(PLACE_RULES)}")
+    return rule
+
+
+def place_allowed(
+    current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M, rule: str = "gap"
+) -> torch.Tensor:
+    """Where the goal stands more than ``margin`` above the scene: a block the scene still lacks (B, H, W);
+    ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions, to the places that need no
+    block under them first, or both."""
+    allowed = _allowed(_height_gap(goal, current), margin)
+    if check_place_rule(rule) in ("centred", "ordered"):
+        allowed = centred_places(allowed)
+    if rule in ("bottom-up", "ordered"):
+        finishing = allowed & finishing_places(current, goal, margin)
+        allowed = torch.where(finishing.flatten(1).any(dim=1).view(-1, 1, 1), finishing, allowed)
+    return allowed
+
+
+def finishing_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
+    """Places where one block, landing on the highest point of its footprint, brings the scene up to the
+    goal's height within ``margin`` (B, H, W): the tops of columns one block short, where a place needs no
+    other block under it first. A block bridging two columns is not finishing until both stand."""
+    rest = F.max_pool2d(current[:, 3:4], FOOTPRINT_PX, stride=1, padding=FOOTPRINT_PX // 2)[:, 0]
+    return (goal[:, 3] - rest) * HEIGHT_STD <= BLOCK_M + margin
+
+
+def centred_places(allowed: torch.Tensor, share: float = CENTRED_SHARE) -> torch.Tensor:
+    """Pixels of ``allowed`` (B, H, W) whose block footprint (a :data:`FOOTPRINT_PX` square) holds at least
+    ``share`` of the allowed pixels of the best-filled footprint in its state: the middles of the regions
+    to fill rather than their rims (a block placed at a rim half misses its cell)."""
+    pad = FOOTPRINT_PX // 2
+    fit = F.avg_pool2d(allowed[:, None].float(), FOOTPRINT_PX, stride=1, padding=pad, count_include_pad=True)
+    fit = fit[:, 0]
+    best = fit.flatten(1).max(dim=1).values.view(-1, 1, 1)
+    return allowed & (fit >= share * best)
 
 
 def _masked(logits: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
@@ -61,9 +117,11 @@ def _require_goal(goal: torch.Tensor | None) -> torch.Tensor:
 class GoalMaskedGCTN(GctnWrapper):
     """A GCTN whose pick and place logits are masked by the height difference to the goal."""
 
-    def __init__(self, gctn: GCTN, margin: float = MARGIN_M) -> None:
+    def __init__(self, gctn: GCTN, margin: float = MARGIN_M, places: str = "gap") -> None:
         super().__init__(gctn)
         self.margin = margin
+        self.places = check_place_rule(places)
+        """The place rule (:data:`PLACE_RULES`)."""
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The GCTN's pick logits (B, H, W), masked outside :func:`pick_allowed`."""
@@ -80,9 +138,10 @@ class GoalMaskedGCTN(GctnWrapper):
         goal image is needed even when ``goal_features`` are given."""
         goal = _require_goal(goal)
         maps = self.gctn.place_maps(current, goal, picks, goal_features)
-        return _masked(maps, place_allowed(current, goal, self.margin))
+        return _masked(maps, place_allowed(current, goal, self.margin, self.places))
 
 
-def goal_masked(gctn: GCTN, mask: bool) -> GCTN | GoalMaskedGCTN:
-    """``gctn`` wrapped in :class:`GoalMaskedGCTN` when ``mask``, else itself."""
-    return GoalMaskedGCTN(gctn) if mask else gctn
+def goal_masked(gctn: GCTN, mask: bool, places: str = "gap") -> GCTN | GoalMaskedGCTN:
+    """``gctn`` wrapped in :class:`GoalMaskedGCTN` (keeping places by ``places``) when ``mask``, else
+    itself."""
+    return GoalMaskedGCTN(gctn, places=places) if mask else gctn

@@ -34,6 +34,11 @@ from tvf.planning.proposals import BLOCK_PIXELS, RULES, Proposals, node_proposal
 HEIGHT_CHANNEL = RGBH_CHANNELS - 1
 
 
+def widest_node(k: int, root_k: int | None) -> int:
+    """The most proposals any node of a search with ``k`` per node and ``root_k`` at the root has."""
+    return max(k, root_k or 0)
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Tree-search settings; the method registry (tvf.policies) holds the TVF-Small and TVF-Large presets."""
@@ -104,7 +109,7 @@ class PlannerConfig:
     @property
     def widest(self) -> int:
         """The most proposals any node has (``k``, or ``root_k`` when wider)."""
-        return max(self.k, self.root_k or 0)
+        return widest_node(self.k, self.root_k)
 
     def k_at(self, level: int) -> int:
         """Proposals per node at ``level`` (1: the root's children)."""

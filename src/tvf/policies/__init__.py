@@ -12,6 +12,7 @@ from tvf.policies.registry import (
     goal_mask_of,
     label,
     make_policy,
+    mask_places_of,
     planner_of,
     policy_for,
 )
@@ -19,5 +20,5 @@ from tvf.policies.registry import (
 __all__ = [
     "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
     "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "goal_mask_of",
-    "label", "make_policy", "planner_of", "policy_for",
+    "label", "make_policy", "mask_places_of", "planner_of", "policy_for",
 ]  # fmt: skip

@@ -13,9 +13,9 @@ import torch
 from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
-from tvf.models.goal_mask import goal_masked
+from tvf.models.goal_mask import PLACE_RULES, goal_masked
 from tvf.models.symmetry import check_turns, symmetrized
-from tvf.planning.search import PlannerConfig
+from tvf.planning.search import PlannerConfig, widest_node
 from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 
@@ -61,6 +61,9 @@ class PolicySpec:
     goal_mask: bool | None = None
     """Mask the GCTN's maps by the height difference to the goal (:mod:`tvf.models.goal_mask`; None: the
     method's, ``Method.goal_mask``; False: the paper's)."""
+    mask_places: str | None = None
+    """With the goal mask: the places it keeps (:data:`tvf.models.goal_mask.PLACE_RULES`; None: the
+    method's, ``Method.mask_places``)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -87,6 +90,8 @@ class Method:
     """Test-time symmetrisation of its GCTN (:mod:`tvf.models.symmetry`; 1 = none, the paper)."""
     goal_mask: bool = False
     """Its GCTN's maps masked by the height difference to the goal (:mod:`tvf.models.goal_mask`)."""
+    mask_places: str = "gap"
+    """The places its goal mask keeps (:data:`tvf.models.goal_mask.PLACE_RULES`)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -101,12 +106,18 @@ def _load_gctn(spec: PolicySpec):
     """The spec's GCTN, goal-masked or not and symmetrised over its turns (the method's unless the spec
     sets them)."""
     turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
-    return symmetrized(goal_masked(load_trained(spec.gctn, "gctn"), goal_mask_of(spec)), turns)
+    gctn = goal_masked(load_trained(spec.gctn, "gctn"), goal_mask_of(spec), mask_places_of(spec))
+    return symmetrized(gctn, turns)
 
 
 def goal_mask_of(spec: PolicySpec) -> bool:
     """Whether ``spec``'s GCTN is goal-masked: the spec's choice, else its method's default."""
     return spec.goal_mask if spec.goal_mask is not None else get_method(spec.method).goal_mask
+
+
+def mask_places_of(spec: PolicySpec) -> str:
+    """The place rule of ``spec``'s goal mask: the spec's choice, else its method's default."""
+    return spec.mask_places if spec.mask_places is not None else get_method(spec.method).mask_places
 
 
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -137,7 +148,8 @@ METHODS: dict[str, Method] = {
             goal_mask=True,
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
-        # the paper's rule is --proposals kmeans --pick-branches 1 --turns 1
+        # unmasked (neither the plain mask nor its ordered places held up; docs/results.md, "Which
+        # places the mask keeps"); the paper's rule is --proposals kmeans --pick-branches 1 --turns 1
         Method(
             "tvf-large",
             "TVF-L",
@@ -171,7 +183,7 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
         raise TvfError(f"{spec.method} does not plan; planner methods are {', '.join(PLANNER_METHODS)}")
     changes = spec.planner_overrides()
     if "k" in changes and "pick_branches" not in changes:  # a smaller K shares fewer picks
-        widest = max(changes["k"], changes.get("root_k") or method.planner.root_k or 0)
+        widest = widest_node(changes["k"], changes.get("root_k", method.planner.root_k))
         changes["pick_branches"] = max(1, min(method.planner.pick_branches, widest))
     try:
         return replace(method.planner, **changes)
@@ -192,6 +204,13 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
         check_turns(spec.turns)
     if spec.goal_mask and "gctn" not in method.models:
         raise TvfError(f"{spec.method} has no GCTN to mask; --goal-mask needs gctn, tvf-small or tvf-large")
+    if spec.mask_places is not None:
+        if spec.mask_places not in PLACE_RULES:
+            rules = ", ".join(PLACE_RULES)
+            raise TvfError(f"unknown --mask-places {spec.mask_places!r}; choose one of {rules}")
+        if not goal_mask_of(spec):
+            raise TvfError(f"--mask-places narrows the goal mask, which {spec.method} does not use here; "
+                           "add --goal-mask True")  # fmt: skip
     return method.build(spec, env, pick_device(spec.device))
 
 
