@@ -19,17 +19,16 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from tvf.geometry import PIXEL_SIZE
 from tvf.models.gctn import GCTN, GctnWrapper
 from tvf.models.images import HEIGHT_STD
+from tvf.tasks import BLOCK_SIZE
 
 MARGIN_M = 0.02
 """Half a block (4 cm): a height difference smaller than this is not a block to move or a hole to fill."""
 
-BLOCK_M = 0.04
-"""A block's height."""
-
-FOOTPRINT_PX = 13
-"""A block's footprint in pixels (4 cm at 3.125 mm): the window a placed block covers and rests on."""
+FOOTPRINT_PX = round(BLOCK_SIZE / PIXEL_SIZE)
+"""A block's footprint in pixels (13: 4 cm at 3.125 mm): the window a placed block covers and rests on."""
 
 CENTRED_SHARE = 0.9
 """A centred place's footprint holds at least this share of the allowed pixels of the best-filled one."""
@@ -45,8 +44,12 @@ def _height_gap(upper: torch.Tensor, lower: torch.Tensor) -> torch.Tensor:
 
 def _allowed(gap: torch.Tensor, margin: float) -> torch.Tensor:
     """Pixels whose gap exceeds ``margin``; a state with none keeps every pixel (B, H, W)."""
-    allowed = gap > margin
-    return allowed | ~allowed.flatten(1).any(dim=1).view(-1, 1, 1)
+    return _unless_empty(gap > margin, torch.ones_like(gap, dtype=torch.bool))
+
+
+def _unless_empty(narrow: torch.Tensor, wide: torch.Tensor) -> torch.Tensor:
+    """``narrow`` (B, H, W) in the states where it keeps a pixel, ``wide`` in the others."""
+    return torch.where(narrow.flatten(1).any(dim=1).view(-1, 1, 1), narrow, wide)
 
 
 def pick_allowed(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
@@ -78,8 +81,7 @@ def place_allowed(
     if check_place_rule(rule) in ("centred", "ordered"):
         allowed = centred_places(allowed)
     if rule in ("bottom-up", "ordered"):
-        finishing = allowed & finishing_places(current, goal, margin)
-        allowed = torch.where(finishing.flatten(1).any(dim=1).view(-1, 1, 1), finishing, allowed)
+        allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)
     return allowed
 
 
@@ -88,7 +90,7 @@ def finishing_places(current: torch.Tensor, goal: torch.Tensor, margin: float = 
     goal's height within ``margin`` (B, H, W): the tops of columns one block short, where a place needs no
     other block under it first. A block bridging two columns is not finishing until both stand."""
     rest = F.max_pool2d(current[:, 3:4], FOOTPRINT_PX, stride=1, padding=FOOTPRINT_PX // 2)[:, 0]
-    return (goal[:, 3] - rest) * HEIGHT_STD <= BLOCK_M + margin
+    return (goal[:, 3] - rest) * HEIGHT_STD <= BLOCK_SIZE + margin
 
 
 def centred_places(allowed: torch.Tensor, share: float = CENTRED_SHARE) -> torch.Tensor:
