@@ -208,6 +208,16 @@ def test_eval_records_the_resolved_goal_mask_and_refuses_to_resume_an_unmasked_f
     assert code == 2 and "oracle has no GCTN to mask" in err
 
 
+def test_eval_records_a_refined_yaw_and_resumes_only_with_it(capsys, tmp_path, smoke_weights):
+    args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1")
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))
+    assert code == 0, err
+    assert json.loads((tmp_path / "e" / "eval.json").read_text())["refine_yaw"] is True  # the default
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--refine-yaw", "False", *args,
+                       "--out", str(tmp_path / "e"))  # fmt: skip
+    assert code == 2 and "other refine_yaw" in err  # the paper's bins' turns are another evaluation
+
+
 def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_path, smoke_weights):
     weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
     roots = {}

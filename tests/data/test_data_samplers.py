@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader
 from tvf.data import GctnSampler, Se2, VfSampler, open_dataset, sample_se2, transform_pixels, warp
 from tvf.data.augment import IMAGE_CENTER, inside, transform_points
 from tvf.data.format import world_to_subpixel
+from tvf.data.samplers import VfRolloutSampler
 from tvf.geometry import bin_to_yaw, rotate_pixels, world_to_pixel, wrap_symmetric
 from tvf.tasks import BLOCK_SYMMETRY
 
@@ -42,6 +43,41 @@ def test_vf_batch_shapes_and_types(synthetic):
     batch = VfSampler(synthetic, batch_size=2).sample(rng=np.random.default_rng(1))
     assert batch["next_color"].shape == (2, 160, 160, 3) and batch["next_height"].shape == (2, 160, 160)
     assert batch["yaw"].dtype == torch.float32 and batch["identity"].dtype == torch.bool
+
+
+def test_rollout_samples_are_consecutive_stored_steps(synthetic):
+    sampler = VfRolloutSampler(synthetic, augment=False, horizon=3)
+    b = sampler.sample(6, np.random.default_rng(3))
+    assert b["picks"].shape == b["places"].shape == (6, 3, 2) and b["yaws"].shape == (6, 3)
+    assert not b["identity"].any()
+    for k in range(6):
+        ep, step = synthetic[int(b["episode"][k])], int(b["step"][k])
+        assert step + 3 <= ep.n_steps  # every step of the rollout exists
+        assert np.array_equal(b["current_height"][k].numpy(), ep.height[step])
+        for j in range(3):
+            assert np.array_equal(b[f"frame{j + 1}_color"][k].numpy(), ep.color[step + j + 1])
+            assert b["picks"][k, j].tolist() == world_to_pixel(ep.pick[step + j, :2]).tolist()
+            assert b["places"][k, j].tolist() == world_to_pixel(ep.place[step + j, :2]).tolist()
+            assert b["yaws"][k, j] == pytest.approx(ep.relative_yaws()[step + j])
+        # the one-step keys are the rollout's first step, as VfSampler builds it
+        assert np.array_equal(b["next_height"][k].numpy(), ep.height[step + 1])
+        assert b["pick"][k].tolist() == b["picks"][k, 0].tolist()
+    with pytest.raises(ValueError, match="horizon"):
+        VfRolloutSampler(synthetic, horizon=0)
+
+
+def test_augmented_rollouts_move_every_frame_and_point_alike(synthetic):
+    plain = VfRolloutSampler(synthetic, augment=False, horizon=2).sample(8, np.random.default_rng(4))
+    moved = VfRolloutSampler(synthetic, augment=True, horizon=2).sample(8, np.random.default_rng(4))
+    assert np.any(moved["aug_yaw"].numpy() != 0)
+    for k in range(8):
+        se2 = Se2(moved["aug_yaw"][k : k + 1].numpy().astype(np.float64),
+                  moved["aug_shift"][k : k + 1].numpy().astype(np.float64))  # fmt: skip
+        ep = synthetic[int(moved["episode"][k])]
+        frames = torch.from_numpy(ep.height[int(moved["step"][k]) + 2][None, None])
+        assert torch.equal(warp(frames, se2)[0, 0], moved["frame2_height"][k])
+        assert (moved["places"][k] >= 0).all() and (moved["places"][k] < 160).all()
+    assert plain["episode"].tolist() == moved["episode"].tolist()  # the same draw, transformed
 
 
 def test_unaugmented_samples_are_the_stored_data(synthetic):

@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from tvf.errors import TvfError
-from tvf.models.checkpoint import CheckpointError, load_checkpoint, load_model, save_checkpoint
+from tvf.models.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    load_initial_weights,
+    load_model,
+    save_checkpoint,
+)
 from tvf.models.gctn import GCTN
 from tvf.models.presets import LITE, SMOKE
 from tvf.models.vf import VisualForesight
@@ -53,6 +59,23 @@ def test_incompatible_config(tmp_path: Path) -> None:
     path = save_checkpoint(tmp_path / "vf.pt", VisualForesight(SMOKE))
     with pytest.raises(CheckpointError, match=r"vf\.pt.*another config.*preset\.name"):
         load_checkpoint(path, "vf", model=VisualForesight(LITE))
+
+
+def test_initial_weights_accept_older_configs_and_free_fields_only(tmp_path: Path) -> None:
+    model, _ = _trained_vf()
+    older = model.config()
+    del older["preset"]["vf_head"]  # a file written before the field existed (the shipped lite VF)
+    path = save_checkpoint(tmp_path / "vf.pt", model, step=3, config=older)
+    with pytest.raises(CheckpointError, match="vf_head"):
+        load_checkpoint(path, "vf", model=VisualForesight(SMOKE))  # a resume stays exact
+    local = VisualForesight(SMOKE.replace(vf_head="local"))
+    assert load_initial_weights(local, path, "vf", free=("vf_head",)).step == 3
+    for a, b in zip(model.state_dict().values(), local.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)
+    with pytest.raises(CheckpointError, match="vf_head"):
+        load_initial_weights(VisualForesight(SMOKE.replace(vf_head="local")), path, "vf")  # not freed
+    with pytest.raises(CheckpointError, match=r"another config.*preset\.name"):
+        load_initial_weights(VisualForesight(LITE), path, "vf", free=("vf_head",))
 
 
 @pytest.mark.parametrize("content", [None, b"", b"not a checkpoint at all", "truncated"])

@@ -199,3 +199,34 @@ def test_local_head_redraws_only_the_pick_and_place_windows() -> None:
     assert torch.equal(out[~inside], rgbh[~inside])  # every untouched pixel is the input's, exactly
     torch.testing.assert_close(out[inside], drawn[inside])  # inside: the same FCN's drawing
     assert not torch.allclose(out[inside], rgbh[inside])
+
+
+def test_rollout_loss_feeds_the_clamped_prediction_back_and_backpropagates_through_it() -> None:
+    torch.manual_seed(0)
+    vf = VisualForesight(SMOKE, seed=3)
+    g = torch.Generator().manual_seed(1)
+    state = torch.randn(2, 4, 160, 160, generator=g)
+    picks = torch.tensor([[[40, 50], [90, 100]], [[60, 70], [30, 120]]])
+    places = torch.tensor([[[80, 80], [50, 40]], [[100, 30], [70, 70]]])
+    yaws = torch.tensor([[0.3, -0.2], [0.0, 1.0]])
+    targets = [torch.randn(2, 4, 160, 160, generator=g) for _ in range(2)]
+    weights = [torch.rand(2, 160, 160, generator=g) + 1 for _ in range(2)]
+    with torch.no_grad():
+        first = vf(state, picks[:, 0], places[:, 0], yaws[:, 0])
+        second = vf(clamp_rgbh(first), picks[:, 1], places[:, 1], yaws[:, 1])
+        expected = (vf_loss(first, targets[0], weights[0]) + vf_loss(second, targets[1], weights[1])) / 2
+        one_step = vf.loss(state, picks[:, 0], places[:, 0], yaws[:, 0], targets[0])
+        assert torch.allclose(vf.rollout_loss(state, picks, places, yaws, targets, weights), expected)
+        assert torch.allclose(vf.rollout_loss(state, picks[:, :1], places[:, :1], yaws[:, :1], targets[:1]),
+                              one_step)  # fmt: skip
+    # the second step's loss reaches the weights through the first prediction too
+    second_only = [targets[0], targets[1]]
+    loss = vf.rollout_loss(state, picks, places, yaws, second_only, [torch.zeros(2, 160, 160), weights[1]])
+    loss.backward()
+    through = {n: p.grad.clone() for n, p in vf.named_parameters()}
+    vf.zero_grad()
+    with torch.no_grad():
+        fed = clamp_rgbh(vf(state, picks[:, 0], places[:, 0], yaws[:, 0]))
+    (vf_loss(vf(fed, picks[:, 1], places[:, 1], yaws[:, 1]), targets[1], weights[1]) / 2).backward()
+    detached = {n: p.grad.clone() for n, p in vf.named_parameters()}
+    assert any(not torch.allclose(through[n], detached[n]) for n in through)

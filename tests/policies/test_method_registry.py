@@ -76,6 +76,17 @@ def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
         make_policy(PolicySpec("oracle", goal_mask=True))
 
 
+def test_the_spec_refine_yaw_reaches_the_policy_and_needs_a_gctn():
+    assert make_policy(PolicySpec("gctn", refine_yaw=True)).refine_yaw is True
+    assert make_policy(PolicySpec("tvf-large", refine_yaw=True)).refine_yaw is True
+    assert make_policy(PolicySpec("gctn")).refine_yaw is True  # the GCTN's and TVF-S's default
+    assert make_policy(PolicySpec("tvf-small")).refine_yaw is True
+    assert make_policy(PolicySpec("gctn", refine_yaw=False)).refine_yaw is False  # the paper's
+    assert make_policy(PolicySpec("tvf-large")).refine_yaw is False  # TVF-L did not gain
+    with pytest.raises(TvfError, match="oracle does not turn blocks by rotation bins; --refine-yaw needs"):
+        make_policy(PolicySpec("oracle", refine_yaw=True))
+
+
 def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
     ordered = make_policy(PolicySpec("tvf-large", goal_mask=True, mask_places="ordered")).search.gctn.gctn
     assert ordered.places == "ordered" and make_policy(PolicySpec("gctn")).model.gctn.places == "gap"

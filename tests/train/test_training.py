@@ -206,6 +206,32 @@ def test_changed_pixel_loss_is_recorded_resumes_only_with_itself_and_rejects_bad
             train(replace(cfg, vf_changed_weight=bad), vf_job(cfg))
 
 
+def test_rollout_loss_is_recorded_resumes_only_with_itself_and_is_refused_elsewhere(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "vf", steps=2, vf_rollout=2, vf_changed_weight=20.0)
+    train(cfg, vf_job(cfg))
+    saved = json.loads((tmp_path / "vf" / "config.json").read_text())
+    assert saved["loss"] == {"changed_weight": 20.0, "rollout": 2}
+    job = vf_job(cfg)
+    batch = job.train_batch(np.random.default_rng(0), None)
+    assert batch["picks"].shape == (2, 2, 2)  # the training batches are two-step rollouts
+    one_step = vf_job(replace(cfg, vf_rollout=1)).loss(batch)[0]
+    assert not torch.isclose(job.loss(batch)[0], one_step)  # the second step counts
+    other = replace(cfg, resume=True, vf_rollout=3, steps=3)
+    with pytest.raises(RunError, match="loss"):
+        train(other, vf_job(other))
+    with pytest.raises(TrainError, match="--vf-rollout"):
+        train(replace(cfg, vf_rollout=0), vf_job(cfg))
+    gctn = config(data_root, tmp_path / "gctn", vf_rollout=2)
+    with pytest.raises(TrainError, match="--vf-rollout is a VF flag"):
+        gctn_job(gctn)
+    # a fine-tune may start from these weights with another head (the same network's output, read locally)
+    tuned = config(
+        data_root, tmp_path / "tuned", steps=2, vf_rollout=2, vf_head="local", init=tmp_path / "vf"
+    )
+    train(tuned, vf_job(tuned))
+    assert json.loads((tmp_path / "tuned" / "config.json").read_text())["init"]["step"] == 2
+
+
 @pytest.mark.slow  # make test-all
 def test_symmetrised_training_starts_from_given_weights_and_is_recorded(data_root, tmp_path):
     base = config(data_root, tmp_path / "base", steps=2)

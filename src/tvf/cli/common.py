@@ -59,6 +59,10 @@ class PlannerFlags:
     """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
     ordered (centred, then bottom-up); default: the method's (docs/planner.md)."""
+    refine_yaw: bool | None = None
+    """GCTN and TVF: True corrects the place's turn, by at most two 10° bins, to the yaws of the picked
+    block and of the goal's block at the place, read from the two height maps (no training;
+    docs/planner.md); False: the GCTN's rotation bin as it is (the paper's); default: the method's."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -68,7 +72,7 @@ class PlannerFlags:
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
-            self.goal_mask, self.mask_places,
+            self.goal_mask, self.mask_places, self.refine_yaw,
         )  # fmt: skip
 
 

@@ -10,6 +10,8 @@ gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the sa
   oracle steps only (states reached after a random action are included).
 * :class:`VfSampler`: (current, action, next) from every step, oracle and random, and with
   probability 1/8 an identity sample (place = pick, no turn, next = current).
+* :class:`VfRolloutSampler`: H consecutive steps of one episode (the frames ``step .. step + H`` and the
+  H actions between them, one SE(2) transform for all), for the VF's multi-step (rollout) loss.
 
 A batch is a dict of tensors. Images are raw units: ``*_color`` (B, H, W, 3) float32 0..255 and
 ``*_height`` (B, H, W) float32 metres (``tvf.models.images.to_rgbh`` normalises them). Pixels are
@@ -261,5 +263,64 @@ class VfSampler(_Sampler):
             "yaw": torch.from_numpy(np.where(identity, 0.0, yaw).astype(np.float32)),
             "rot_bin": torch.from_numpy(np.where(identity, 0, bins).astype(np.int64)),
             "identity": torch.from_numpy(identity),
+            **self._meta(ep, step, se2),
+        }
+
+
+class VfRolloutSampler(VfSampler):
+    """VF rollouts: ``horizon`` consecutive (action, next) steps from one start, no identity samples.
+
+    Beside the single-step keys of :class:`VfSampler` (``current``, ``next`` = the frame after the first
+    action, ``pick``, ``place``, ``yaw``, ``rot_bin`` of the first action), a batch holds every step:
+    ``picks`` / ``places`` (B, H, 2), ``yaws`` (B, H) and the frames after each action as ``frame1_*`` ..
+    ``frameH_*``. One transform moves all the frames and all 2H points, and keeps every point inside.
+    """
+
+    def __init__(
+        self,
+        episodes: Sequence[Episode],
+        batch_size: int = 1,
+        augment: bool = True,
+        seed: int = 0,
+        n_rotations: int = 36,
+        horizon: int = 2,
+    ) -> None:
+        if horizon < 1:
+            raise ValueError(f"a rollout needs a horizon of at least 1 step, got {horizon}")
+        self.horizon = horizon  # before the base class asks eligible_steps
+        super().__init__(episodes, batch_size, augment, seed, n_rotations, identity_fraction=0.0)
+
+    def eligible_steps(self, episode: Episode) -> np.ndarray:
+        return np.arange(episode.n_steps - self.horizon + 1)
+
+    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
+        """(B, 2H, 2): the pick and place of each of the H steps, in order."""
+        steps = np.arange(self.horizon)
+        picks = np.stack([self._pick_sub[e][s + steps] for e, s in zip(ep, step, strict=True)])
+        places = np.stack([self._place_sub[e][s + steps] for e, s in zip(ep, step, strict=True)])
+        return np.stack([picks, places], axis=2).reshape(len(ep), 2 * self.horizon, 2)
+
+    def _build(
+        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
+    ) -> dict[str, torch.Tensor]:
+        h = self.horizon
+        frames = [self._frames(ep, step + k) for k in range(h + 1)]
+        names = ("current", *(f"frame{k}" for k in range(1, h + 1)))
+        images = self._split_images(warp(self._stack_images(*frames), se2), names)
+        yaws = np.stack([[self._yaws[e][s + k] for k in range(h)] for e, s in zip(ep, step, strict=True)])
+        bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
+        picks, places = pixels[:, 0::2], pixels[:, 1::2]
+        return {
+            **images,
+            "next_color": images["frame1_color"],
+            "next_height": images["frame1_height"],
+            "pick": torch.from_numpy(picks[:, 0].copy()),
+            "place": torch.from_numpy(places[:, 0].copy()),
+            "yaw": torch.from_numpy(yaws[:, 0].astype(np.float32)),
+            "rot_bin": torch.from_numpy(bins),
+            "identity": torch.zeros(len(ep), dtype=torch.bool),
+            "picks": torch.from_numpy(picks.copy()),
+            "places": torch.from_numpy(places.copy()),
+            "yaws": torch.from_numpy(yaws.astype(np.float32)),
             **self._meta(ep, step, se2),
         }

@@ -20,7 +20,8 @@ RECIPE_FLAGS = {
 }
 RECIPE_FLAGS |= {"gctn_schedule": ("gctn", "schedule"), "gctn_warmup": ("gctn", "warmup"),
                  "vf_schedule": ("vf", "schedule"), "vf_warmup": ("vf", "warmup"),
-                 "vf_changed_weight": ("vf", "vf_changed_weight")}  # fmt: skip
+                 "vf_changed_weight": ("vf", "vf_changed_weight"),
+                 "vf_rollout": ("vf", "vf_rollout")}  # fmt: skip
 """Experiment flags that override a field of a model kind's recipe (tvf.train.registry)."""
 NOT_RECORDED = ("workers", "envs_per_worker", "backend", "address", "stages", "ship", "device", "wandb")
 """Flags that may change between runs of the same experiment or sweep (how, not what, it computes)."""
@@ -77,6 +78,9 @@ class ExperimentConfig:
     vf_changed_weight: float | None = None
     """VF extra loss weight on the pixels whose height changes (0: the reference's loss; default: the
     preset's; docs/models.md)."""
+    vf_rollout: int | None = None
+    """VF rollout loss horizon: each training sample is this many consecutive steps, each predicted from
+    the VF's own prediction (1: the reference's one-step loss; default: the preset's; docs/models.md)."""
     workers: int = 2
     """Parallel processes for data generation and evaluation (with --backend ray: Ray tasks at once)."""
     envs_per_worker: int = 1

@@ -349,6 +349,15 @@ def _config_differences(found: dict[str, Any], expected: dict[str, Any], prefix:
     return diffs
 
 
+def _check_config(path: Path, found: dict[str, Any], expected: dict[str, Any]) -> None:
+    diffs = _config_differences(found, expected)
+    if diffs:
+        raise CheckpointError(
+            f"checkpoint {path} was trained with another config ({'; '.join(diffs)}); "
+            "use the matching preset/config or retrain"
+        )
+
+
 def load_checkpoint(
     path: str | os.PathLike,
     expected_kind: str,
@@ -374,12 +383,7 @@ def load_checkpoint(
     if expected_config is None and model is not None and hasattr(model, "config"):
         expected_config = model.config()
     if expected_config is not None:
-        diffs = _config_differences(config, expected_config)
-        if diffs:
-            raise CheckpointError(
-                f"checkpoint {path} was trained with another config ({'; '.join(diffs)}); "
-                "use the matching preset/config or retrain"
-            )
+        _check_config(path, config, expected_config)
     ckpt = Checkpoint(
         path=path,
         kind=kind,
@@ -421,6 +425,20 @@ def preset_of(ckpt: Checkpoint) -> ModelPreset:
         raise CheckpointError(
             f"checkpoint {ckpt.path} has no valid model preset in its config ({e}); retrain with this tvf"
         ) from e
+
+
+def load_initial_weights(
+    model: nn.Module, path: str | os.PathLike, kind: str, free: tuple[str, ...] = ()
+) -> Checkpoint:
+    """Load the weights of ``path`` into ``model`` to start training from them. The checkpoint's config must
+    be the model's, with the preset fields the file predates at their defaults and the preset fields
+    named in ``free`` taken as the model's (the VF's head: how one network's output is used); the
+    weights must still fit."""
+    ckpt = load_checkpoint(path, kind)
+    preset = preset_of(ckpt).replace(**{name: getattr(model.preset, name) for name in free})
+    _check_config(ckpt.path, {**ckpt.config, "preset": preset.as_dict()}, model.config())
+    load_weights(model, ckpt)
+    return ckpt
 
 
 MODEL_CLASSES: dict[str, type[nn.Module]] = {

@@ -249,3 +249,24 @@ class VisualForesight(ImagePredictor, nn.Module):
     ) -> torch.Tensor:
         """Training loss (:func:`vf_loss`) of the prediction against the next normalised RGB-H."""
         return vf_loss(self(rgbh, pick_pixels, place_pixels, yaws), target, pixel_weights)
+
+    def rollout_loss(
+        self,
+        rgbh: torch.Tensor,
+        picks: torch.Tensor,
+        places: torch.Tensor,
+        yaws: torch.Tensor,
+        targets: list[torch.Tensor],
+        pixel_weights: list[torch.Tensor] | None = None,
+    ) -> torch.Tensor:
+        """The multi-step (rollout) loss: the mean of :func:`vf_loss` over H steps, each step predicted
+        from the model's own clamped prediction of the step before (gradients flow through the whole
+        rollout), as the planner feeds it. ``picks`` / ``places`` (B, H, 2), ``yaws`` (B, H),
+        ``targets`` H normalised RGB-H images (B, 4, h, w), ``pixel_weights`` H (B, h, w) or None.
+        H = 1 is :meth:`loss`."""
+        state, total = rgbh, rgbh.new_zeros(())
+        for k, target in enumerate(targets):
+            predicted = self(state, picks[:, k], places[:, k], yaws[:, k])
+            total = total + vf_loss(predicted, target, None if pixel_weights is None else pixel_weights[k])
+            state = clamp_rgbh(predicted)
+        return total / len(targets)

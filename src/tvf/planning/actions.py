@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tvf.geometry import WORKSPACE, bin_to_yaw, pixel_to_world
+from tvf.planning.yaw import refined_turn
 from tvf.tasks import BLOCK_SIZE
 
 FOOTPRINT_PX = 13
@@ -33,6 +34,13 @@ def pixels_to_action(pick: np.ndarray, place: np.ndarray, yaw: float, height: np
     return np.array([[*pick_xy, pick_z, 0.0], [*place_xy, place_z, float(yaw)]], dtype=np.float64)
 
 
-def bin_action(pick: np.ndarray, place: np.ndarray, rot_bin: int, n_rotations: int, height: np.ndarray):
-    """:func:`pixels_to_action` with the yaw change given as a rotation bin."""
-    return pixels_to_action(pick, place, float(bin_to_yaw(rot_bin, n_rotations)), height)
+def bin_action(
+    pick: np.ndarray, place: np.ndarray, rot_bin: int, n_rotations: int, height: np.ndarray,
+    goal_height: np.ndarray | None = None,
+) -> np.ndarray:  # fmt: skip
+    """:func:`pixels_to_action` with the yaw change given as a rotation bin; with ``goal_height``, the
+    turn refined to the block yaws read from the two height maps (:func:`tvf.planning.yaw.refined_turn`)."""
+    turn = float(bin_to_yaw(rot_bin, n_rotations))
+    if goal_height is not None:
+        turn = refined_turn(turn, height, pick, goal_height, place)
+    return pixels_to_action(pick, place, turn, height)

@@ -15,10 +15,11 @@ from tvf.policies.registry import (
     mask_places_of,
     planner_of,
     policy_for,
+    refine_yaw_of,
 )
 
 __all__ = [
     "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
     "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "goal_mask_of",
-    "label", "make_policy", "mask_places_of", "planner_of", "policy_for",
+    "label", "make_policy", "mask_places_of", "planner_of", "policy_for", "refine_yaw_of",
 ]  # fmt: skip

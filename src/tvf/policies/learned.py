@@ -44,9 +44,11 @@ class GctnPolicy:
 
     name = "gctn"
 
-    def __init__(self, model, device: torch.device | str = "cpu") -> None:
+    def __init__(self, model, device: torch.device | str = "cpu", refine_yaw: bool = False) -> None:
         self.device = torch.device(device)
         self.model = model.eval().to(self.device)
+        self.refine_yaw = refine_yaw
+        """Correct the place's turn to the block yaws read from the height maps (tvf.planning.yaw)."""
         self.mix: bool | None = None
         """Batch several environments in one GCTN pass (None: where the device does, a GPU)."""
 
@@ -54,9 +56,8 @@ class GctnPolicy:
         pass
 
     def act(self, obs: Observation, goal: Observation) -> np.ndarray:
-        return self._act(observation_tensor(obs, self.device), observation_tensor(goal, self.device), [obs])[
-            0
-        ]
+        current, target = observation_tensor(obs, self.device), observation_tensor(goal, self.device)
+        return self._act(current, target, [obs], [goal])[0]
 
     def act_batch(
         self, observations: Sequence[Observation], goals: Sequence[Observation]
@@ -70,13 +71,15 @@ class GctnPolicy:
             observations_tensor(observations, self.device),
             observations_tensor(goals, self.device),
         )
-        return self._act(current, target, observations)
+        return self._act(current, target, observations, goals)
 
-    def _act(self, current: torch.Tensor, goal: torch.Tensor, observations: Sequence[Observation]) -> list:
+    def _act(self, current: torch.Tensor, goal: torch.Tensor, observations: Sequence[Observation],
+             goals: Sequence[Observation]) -> list:  # fmt: skip
         pick, place, rot, _ = self.model.act(current, goal)
         pick, place, r = pick.cpu().numpy(), place.cpu().numpy(), self.model.preset.n_rotations
         return [
-            bin_action(pick[i], place[i], int(rot[i]), r, obs["height"]) for i, obs in enumerate(observations)
+            bin_action(pick[i], place[i], int(rot[i]), r, obs["height"], _goal_height(goal, self.refine_yaw))
+            for i, (obs, goal) in enumerate(zip(observations, goals, strict=True))
         ]
 
 
@@ -87,8 +90,10 @@ class TvfPolicy:
     """
 
     def __init__(self, gctn, vf, config: PlannerConfig, device: torch.device | str = "cpu",
-                 name: str = "tvf") -> None:  # fmt: skip
+                 name: str = "tvf", refine_yaw: bool = False) -> None:  # fmt: skip
         self.name = name
+        self.refine_yaw = refine_yaw
+        """Correct the executed turn to the block yaws read from the height maps (tvf.planning.yaw)."""
         self.device = torch.device(device)
         self.search = TreeSearch(gctn.eval().to(self.device), vf.eval().to(self.device), config)
         self.last_plan: Plan | None = None
@@ -113,6 +118,18 @@ class TvfPolicy:
         self.last_plan = plans[-1]
         n = self.search.n_rotations
         return [
-            bin_action(p.first.pick, p.first.place, p.first.rotation, n, obs["height"])
-            for p, obs in zip(plans, observations, strict=True)
+            bin_action(
+                p.first.pick,
+                p.first.place,
+                p.first.rotation,
+                n,
+                obs["height"],
+                _goal_height(goal, self.refine_yaw),
+            )
+            for p, obs, goal in zip(plans, observations, goals, strict=True)
         ]
+
+
+def _goal_height(goal: Observation, refine_yaw: bool) -> np.ndarray | None:
+    """The goal's height map where the turn is refined (tvf.planning.actions.bin_action), else None."""
+    return goal["height"] if refine_yaw else None

@@ -64,6 +64,10 @@ class PolicySpec:
     mask_places: str | None = None
     """With the goal mask: the places it keeps (:data:`tvf.models.goal_mask.PLACE_RULES`; None: the
     method's, ``Method.mask_places``)."""
+    refine_yaw: bool | None = None
+    """Correct the place's turn, by at most two 10° bins, to the block yaws read from the current and the
+    goal height maps (:mod:`tvf.planning.yaw`; None: the method's, ``Method.refine_yaw``; False: the
+    paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -92,6 +96,8 @@ class Method:
     """Its GCTN's maps masked by the height difference to the goal (:mod:`tvf.models.goal_mask`)."""
     mask_places: str = "gap"
     """The places its goal mask keeps (:data:`tvf.models.goal_mask.PLACE_RULES`)."""
+    refine_yaw: bool = False
+    """Its place turns corrected to the block yaws read from the height maps (:mod:`tvf.planning.yaw`)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -120,12 +126,19 @@ def mask_places_of(spec: PolicySpec) -> str:
     return spec.mask_places if spec.mask_places is not None else get_method(spec.method).mask_places
 
 
+def refine_yaw_of(spec: PolicySpec) -> bool:
+    """Whether ``spec``'s place turns are refined from the height maps: the spec's choice, else its
+    method's default."""
+    return spec.refine_yaw if spec.refine_yaw is not None else get_method(spec.method).refine_yaw
+
+
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
-    return GctnPolicy(_load_gctn(spec), device)
+    return GctnPolicy(_load_gctn(spec), device, refine_yaw_of(spec))
 
 
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
-    return TvfPolicy(_load_gctn(spec), load_trained(spec.vf, "vf"), planner_of(spec), device, spec.method)
+    vf = load_trained(spec.vf, "vf")
+    return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
 METHODS: dict[str, Method] = {
@@ -137,7 +150,9 @@ METHODS: dict[str, Method] = {
         # (docs/results.md); the paper's is --turns 1
         # GCTN and TVF-S: the GCTN's maps masked by the height difference to the goal (docs/results.md,
         # "A goal-difference mask"; TVF-L did not gain from it); the paper's is --goal-mask False
-        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, goal_mask=True),
+        # GCTN and TVF-S: their place turns corrected from the height maps (docs/results.md, "Turns read
+        # from the height maps"); the paper's is --refine-yaw False
+        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, goal_mask=True, refine_yaw=True),
         Method(
             "tvf-small",
             "TVF-S",
@@ -146,6 +161,7 @@ METHODS: dict[str, Method] = {
             PlannerConfig(k=2, depth=1, turns_depth=1),
             turns=4,
             goal_mask=True,
+            refine_yaw=True,
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
         # unmasked (neither the plain mask nor its ordered places held up; docs/results.md, "Which
@@ -204,6 +220,9 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
         check_turns(spec.turns)
     if spec.goal_mask and "gctn" not in method.models:
         raise TvfError(f"{spec.method} has no GCTN to mask; --goal-mask needs gctn, tvf-small or tvf-large")
+    if spec.refine_yaw and "gctn" not in method.models:
+        raise TvfError(f"{spec.method} does not turn blocks by rotation bins; --refine-yaw needs gctn, "
+                       "tvf-small or tvf-large")  # fmt: skip
     if spec.mask_places is not None:
         if spec.mask_places not in PLACE_RULES:
             rules = ", ".join(PLACE_RULES)

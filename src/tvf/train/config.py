@@ -45,6 +45,10 @@ class TrainConfig:
     """VF only: extra L1 weight on the pixels whose height changes (weight 1 + this there; 0: the
     reference's loss, every pixel alike; docs/models.md, "Changed-pixel loss"); default: the preset's
     recipe."""
+    vf_rollout: int | None = None
+    """VF only: train on rollouts of this many consecutive steps, each predicted from the model's own
+    prediction of the step before (the planner's use; docs/models.md, "Rollout loss"; each step costs
+    about this many single steps); 1: the reference's one-step loss; default: the preset's recipe."""
     turns: int | None = None
     """GCTN only: train the GCTN's maps averaged over 1, 2 or 4 quarter turns of the scene (8: and their
     mirror images), the maps that `--turns` plans with (tvf.models.symmetry): its weights then learn

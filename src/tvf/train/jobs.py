@@ -13,8 +13,8 @@ import torch
 
 from tvf.data.dataset import demo_subset, open_dataset
 from tvf.data.format import DataError, Episode
-from tvf.data.samplers import GctnSampler, VfSampler
-from tvf.models.checkpoint import load_checkpoint, trained_checkpoint
+from tvf.data.samplers import GctnSampler, VfRolloutSampler, VfSampler
+from tvf.models.checkpoint import load_initial_weights, trained_checkpoint
 from tvf.models.gctn import GCTN
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.latent import LatentDynamics
@@ -98,16 +98,20 @@ def _base_config(kind: str, cfg: TrainConfig, model, data: dict[str, Any]) -> di
 
 
 def _job(
-    kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, pictures, judged=None, **val_kwargs
-) -> TrainingJob:
+    kind: str, cfg: TrainConfig, model, sampler_cls, loss, metrics, pictures, judged=None, train_sampler=None,
+    **val_kwargs,
+) -> TrainingJob:  # fmt: skip
     """A job from a model, its sampler class, a batch loss, a validation metric function and the pictures
     of one validation sample (the middle one of the fixed samples); ``judged`` is the module validated
-    and drawn (default ``model``, the one trained and saved)."""
+    and drawn (default ``model``, the one trained and saved); ``train_sampler`` the class that draws the
+    training batches when it is not ``sampler_cls`` (which always draws the validation samples)."""
     judged = model if judged is None else judged
     init = _init_source(cfg, kind)  # before the data: a bad --init fails at once
     episodes, val_eps, data = _load_episodes(cfg)
     r = model.preset.n_rotations  # the samplers' rotation bins are the model's
-    sampler = sampler_cls(episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r)
+    sampler = (train_sampler or sampler_cls)(
+        episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r
+    )
     validate = draw = None
     if val_eps:
         val_sampler = sampler_cls(val_eps, augment=False, n_rotations=r, **val_kwargs)
@@ -136,10 +140,15 @@ def _init_source(cfg: TrainConfig, kind: str) -> Path | None:
     return trained_checkpoint(cfg.init, kind)
 
 
+INIT_FREE_FIELDS = ("vf_head",)
+"""Preset fields a run may change from its --init weights: the VF's head reads the same network's output
+another way (a fine-tune may switch it; the weights must still fit)."""
+
+
 def _initialise(model, path: Path, kind: str) -> dict[str, Any]:
-    """Load the weights of ``path`` (of ``kind`` and the model's preset) into ``model``; what the run's
-    config records of them: the step and the file's SHA-256."""
-    ckpt = load_checkpoint(path, kind, model=model)
+    """Load the weights of ``path`` (of ``kind`` and the model's preset, up to :data:`INIT_FREE_FIELDS`)
+    into ``model``; what the run's config records of them: the step and the file's SHA-256."""
+    ckpt = load_initial_weights(model, path, kind, free=INIT_FREE_FIELDS)
     return {"step": ckpt.step, "sha256": sha256_file(path)}
 
 
@@ -149,9 +158,16 @@ def _refuse_turns(cfg: TrainConfig, model: str) -> None:
                          "such maps: leave it out")  # fmt: skip
 
 
+def _refuse_rollout(cfg: TrainConfig, model: str) -> None:
+    if (cfg.vf_rollout or 1) > 1:
+        raise TrainError(f"--vf-rollout is a VF flag (its multi-step loss); the {model} is trained on single "
+                         "steps: leave it out")  # fmt: skip
+
+
 def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     """Training job for the goal-conditioned Transporter (with ``turns`` > 1: its symmetrised maps, which
     are also what is validated; the plain GCTN inside is what is saved)."""
+    _refuse_rollout(cfg, "GCTN")
     model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
     turns = check_turns(1 if cfg.turns is None else cfg.turns)
     trained = symmetrized(model, turns)
@@ -202,6 +218,7 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     if cfg.vf_head is not None:
         preset = preset.replace(vf_head=cfg.vf_head)
     model = VisualForesight(preset, seed=cfg.seed)
+    horizon = cfg.vf_rollout or 1
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         current = to_rgbh(batch["current_color"], batch["current_height"])
@@ -213,9 +230,24 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
         value = model.loss(current, batch["pick"], batch["place"], batch["yaw"], target, weights)
         return value, {"loss": float(value.detach())}
 
-    job = _job("vf", cfg, model, sampler_cls, loss, vf_metrics, vf_pictures, identity_fraction=0.0)
-    if cfg.vf_changed_weight:  # part of what a resumed run must match; absent: the reference's loss
-        job.config["loss"] = {"changed_weight": cfg.vf_changed_weight}
+    def rollout_loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        heights = [batch["current_height"], *(batch[f"frame{k}_height"] for k in range(1, horizon + 1))]
+        targets = [to_rgbh(batch[f"frame{k}_color"], heights[k]) for k in range(1, horizon + 1)]
+        weights = None
+        if cfg.vf_changed_weight:
+            pairs = zip(heights, heights[1:], strict=False)  # each step's before and after
+            weights = [changed_pixel_weights(a, b, cfg.vf_changed_weight) for a, b in pairs]
+        current = to_rgbh(batch["current_color"], batch["current_height"])
+        value = model.rollout_loss(current, batch["picks"], batch["places"], batch["yaws"], targets, weights)
+        return value, {"loss": float(value.detach())}
+
+    rollouts = partial(VfRolloutSampler, horizon=horizon) if horizon > 1 else None
+    job = _job("vf", cfg, model, sampler_cls, rollout_loss if rollouts else loss, vf_metrics, vf_pictures,
+               train_sampler=rollouts, identity_fraction=0.0)  # fmt: skip
+    # part of what a resumed run must match; absent: the reference's loss
+    recorded = {"changed_weight": cfg.vf_changed_weight, "rollout": horizon if horizon > 1 else None}
+    if any(recorded.values()):
+        job.config["loss"] = {k: v for k, v in recorded.items() if v}
     return job
 
 
@@ -249,6 +281,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     if cfg.vf_head is not None:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
     _refuse_turns(cfg, "latent-dynamics model")
+    _refuse_rollout(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
 
     def loss(batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:

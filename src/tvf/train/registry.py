@@ -34,6 +34,8 @@ class Recipe:
     warmup: int = 0
     vf_changed_weight: float = 0.0
     """The VF's extra loss weight on changed pixels (0: the reference's loss; unused by the GCTN)."""
+    vf_rollout: int = 1
+    """The VF's rollout loss horizon in steps (1: the reference's one-step loss; unused by the GCTN)."""
 
 
 @dataclass(frozen=True)

@@ -129,6 +129,9 @@ def check_config(cfg: TrainConfig) -> None:
     weight = cfg.vf_changed_weight
     if weight is not None and not (math.isfinite(weight) and weight >= 0):
         raise TrainError(f"--vf-changed-weight must be 0 (the reference's loss) or more, not {weight}")
+    if cfg.vf_rollout is not None and cfg.vf_rollout < 1:
+        rollout = cfg.vf_rollout
+        raise TrainError(f"--vf-rollout must be 1 (the reference's one-step loss) or more, not {rollout}")
     for name in ("threads", "loader_workers", "keep"):
         if getattr(cfg, name) < 0:
             flag = f"--{name.replace('_', '-')}"
