@@ -40,6 +40,8 @@ MIN_AGREEMENT = 0.3
 the angle, 1 for one direction) for their yaw to be trusted."""
 EDGE_WINDOW = 41
 """Pixels: the square of the goal whose edges give the structure's yaw (about two 5 cm cells around)."""
+BLUR_REACH = 4
+"""Pixels a one-pixel Gaussian blur reaches (scipy truncates it at 4 sigma)."""
 MIN_EDGE = 0.005
 """Metres per pixel (after a one-pixel Gaussian blur): the height gradients counted as edges."""
 MAX_CHANGE = math.radians(20.0)
@@ -96,8 +98,12 @@ def structure_yaw(height: np.ndarray, pixel: np.ndarray, window: int = EDGE_WIND
     their directions are (0..1): the gradient-weighted mean of four times their angles."""
     r, c = int(pixel[0]), int(pixel[1])
     half = window // 2
-    smooth = ndimage.gaussian_filter(height.astype(np.float64), 1.0)
-    patch = smooth[max(r - half, 0) : r + half + 1, max(c - half, 0) : c + half + 1]
+    # blur only the window and the blur's reach around it (4 px at sigma 1): the same values there
+    lo, hi = (max(r - half, 0), max(c - half, 0)), (r + half + 1, c + half + 1)
+    outer = tuple(slice(max(a - BLUR_REACH, 0), b + BLUR_REACH) for a, b in zip(lo, hi, strict=True))
+    smooth = ndimage.gaussian_filter(height[outer].astype(np.float64), 1.0)
+    inner = tuple(slice(a - o.start, b - o.start) for a, b, o in zip(lo, hi, outer, strict=True))
+    patch = smooth[inner]
     gy, gx = ndimage.sobel(patch, axis=0) / 8, ndimage.sobel(patch, axis=1) / 8  # metres per pixel
     strength = np.hypot(gx, gy)
     edges = strength > MIN_EDGE
