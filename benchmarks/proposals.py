@@ -19,8 +19,12 @@ plan one level (K proposals, their imagined outcomes) under each rule. Per rule 
 * ``decision_s``: median seconds of that one-level decision (GCTN, proposals, VF on K children) and
   ``tvf_large_s``: one depth-3 decision on the first ``--large`` scenes (median).
 
+With ``--methods tvf-large[,...]`` each named method is measured too, as the registry builds it (its
+GCTN symmetrised and goal-masked as shipped, its planner settings; ``--order-branch`` adds each method
+with one ordered place per node, which needs its goal mask): rows ``method:NAME``.
+
 Prints one JSON object. Usage: python benchmarks/proposals.py [--seeds 10] [--mid 5] [--k 3]
-[--threads 1] [--large 2]
+[--threads 1] [--large 2] [--methods tvf-large] [--order-branch] [--only-methods]
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import itertools
 import json
 import statistics
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -38,6 +43,7 @@ from tvf.geometry import world_to_pixel
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import to_rgbh
 from tvf.planning.search import PlannerConfig, TreeSearch
+from tvf.policies import PolicySpec, make_policy
 from tvf.seeds import seed_range
 from tvf.sim.factory import sim_env
 from tvf.sim.oracle import ready_targets
@@ -104,8 +110,11 @@ def decide(search: TreeSearch, scene: dict) -> tuple[object, float]:
     return plan, time.perf_counter() - start
 
 
-def evaluate(gctn, vf, k: int, changes: dict, items: list[dict], n_large: int) -> dict:
-    search = TreeSearch(gctn, vf, PlannerConfig(k=k, depth=1, **changes))
+def evaluate(gctn, vf, config: PlannerConfig, items: list[dict], n_large: int) -> dict:
+    """The distinctness of ``config``'s root proposals (one level) over ``items``, and the time of a
+    depth-3 decision with it on the first ``n_large``."""
+    k = config.k
+    search = TreeSearch(gctn, vf, replace(config, depth=1))
     decide(search, items[0])  # warm-up
     rows = []
     for scene in items:
@@ -131,7 +140,7 @@ def evaluate(gctn, vf, k: int, changes: dict, items: list[dict], n_large: int) -
                 seconds=seconds,
             )
         )
-    large = TreeSearch(gctn, vf, PlannerConfig(k=k, depth=3, **changes))
+    large = TreeSearch(gctn, vf, replace(config, depth=3))
     large_s = [decide(large, scene)[1] for scene in items[:n_large]]
 
     def mean(key: str) -> float:
@@ -163,14 +172,23 @@ def main() -> None:
     parser.add_argument("--k", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--large", type=int, default=2, help="scenes timed with a depth-3 search")
+    parser.add_argument("--methods", default="", help="comma-separated methods measured as shipped")
+    parser.add_argument("--order-branch", action="store_true", help="also each method with --order-branch")
+    parser.add_argument("--only-methods", action="store_true", help="skip the plain GCTN's rule rows")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     gctn, vf = load_trained(None, "gctn"), load_trained(None, "vf")
     items = scenes(args.seeds, args.mid)
+    rules = {} if args.only_methods else variants(args.k)
     results = {
-        name: evaluate(gctn, vf, args.k, changes, items, args.large)
-        for name, changes in variants(args.k).items()
+        name: evaluate(gctn, vf, PlannerConfig(k=args.k, depth=1, **changes), items, args.large)
+        for name, changes in rules.items()
     }
+    for method in filter(None, args.methods.split(",")):
+        for order in (False, True) if args.order_branch else (False,):
+            policy = make_policy(PolicySpec(method, order_branch=order or None, device="cpu"))
+            name = f"method:{method}" + ("+order-branch" if order else "")
+            results[name] = evaluate(policy.search.gctn, vf, policy.search.config, items, args.large)
     meta = {
         "k": args.k,
         "scenes": len(items),

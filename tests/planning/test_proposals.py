@@ -16,6 +16,7 @@ from tvf.planning.proposals import (
     rule_proposals,
     state_proposals,
     turn_difference,
+    with_extra_place,
 )
 
 LOW = -100.0
@@ -412,3 +413,22 @@ def test_kmeans_keeps_the_best_of_its_restarts():
         labels, centres = kmeans(points, 6, np.random.default_rng(d), n_init=10)
         assert _inertia(points, centres) <= min(single) * (1 + 1e-6)
         assert (labels == ((points[:, None] - centres[None]) ** 2).sum(-1).argmin(1)).all()
+
+
+def test_an_extra_place_fills_a_missing_proposal_or_replaces_the_last_unless_already_proposed():
+    logits = _blank()
+    logits[1, 3, 3], logits[2, 12, 12] = 0.0, -1.0  # two places at the best pick
+    props = node_proposals(logits[None], np.array([[8, 8]]), 2, rule="nms", radius=4.0)
+    assert props.places.tolist() == [[3, 3], [12, 12]]
+    extra = _blank()
+    extra[3, 8, 2] = -7.0  # the extra rule's best place: 5 px from the first proposal
+    replaced = with_extra_place(props, extra, np.array([8, 8]), 2, radius=4.0)
+    assert replaced.places.tolist() == [[3, 3], [8, 2]] and replaced.rotations.tolist() == [1, 3]
+    assert replaced.logits.tolist() == [0.0, -7.0] and replaced.picks.tolist() == [[8, 8], [8, 8]]
+    appended = with_extra_place(props, extra, np.array([8, 8]), 3, radius=4.0)
+    assert appended.places.tolist() == [[3, 3], [12, 12], [8, 2]]
+    assert with_extra_place(props, extra, np.array([8, 8]), 2, radius=6.0) is props  # already proposed
+    assert with_extra_place(props, extra, np.array([8, 8]), 1, radius=4.0) is props  # greedy stays
+    one = rule_proposals(logits, 1)  # no picks recorded: the node's one pick is filled in
+    filled = with_extra_place(one, extra, np.array([5, 6]), 2, radius=4.0)
+    assert filled.picks.tolist() == [[5, 6], [5, 6]] and filled.places.tolist() == [[3, 3], [8, 2]]

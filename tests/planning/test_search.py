@@ -565,6 +565,8 @@ def test_the_root_proposals_use_every_planner_setting(settings: dict, defaults_d
         (dict(tie_band=-1e-4), "tie_band must be a score difference >= 0, got -0.0001"),
         (dict(tie_band=math.inf), "tie_band must be a score difference >= 0, got inf"),
         (dict(root_k=0), "root_k must be None or at least 1, got 0"),
+        (dict(gamma=0.0), "gamma must be in (0, 1], got 0.0"),
+        (dict(gamma=1.01), "gamma must be in (0, 1], got 1.01"),
         (
             dict(k=2, root_k=4, pick_branches=5),
             "pick_branches must be between 1 and root_k = 4 (the picks share the K proposals), got 5",
@@ -589,6 +591,7 @@ def test_config_accepts_the_edges_of_every_range():
         dict(tie_band=0.0),
         dict(k=2, root_k=4, pick_branches=4),
         dict(k=3, root_k=1),
+        dict(gamma=1.0),
     ):
         config = PlannerConfig(**edge)
         assert all(getattr(config, key) == value for key, value in edge.items())
@@ -652,3 +655,39 @@ def test_a_goal_masked_gctn_picks_the_loose_block_and_proposes_places_the_goal_f
     roots = [n for n in plan.nodes if n.depth == 1]
     assert roots and all(picks[tuple(n.pick.tolist())] and places[tuple(n.place.tolist())] for n in roots)
     assert {tuple(n.pick.tolist()) for n in roots} <= {(r, c) for r in range(24, 37) for c in range(24, 37)}
+
+
+def _heights(cells: dict[tuple[int, int], float]) -> torch.Tensor:
+    """RGB-H (1, 4, 160, 160): 13 x 13 px columns of the given heights (m) at the given centres."""
+    from tvf.models.images import to_rgbh
+
+    color, height = torch.full((160, 160, 3), 50.0), torch.zeros(160, 160)
+    for (r, c), h in cells.items():
+        height[r - 6 : r + 7, c - 6 : c + 7] = h
+    return to_rgbh(color, height)
+
+
+class StillVf:
+    """Imagines that nothing changes."""
+
+    def predict_rgbh(self, states, picks, places, yaws):
+        return states.clone()
+
+
+def test_the_order_branch_proposes_where_one_block_finishes_the_goal_and_the_search_weighs_it():
+    """The GCTN's places all lie on a two-block column of the goal (a block placed there now lands a layer
+    too low); the order branch puts the one-block cell in place of the last proposal."""
+    current = _heights({(30, 30): 0.04, (30, 60): 0.04})
+    goal = _heights({(80, 80): 0.04, (80, 120): 0.08})
+    logits = torch.full((ROTATIONS, 160, 160), -50.0)
+    logits[0, 80, 120], logits[1, 80, 100] = 0.0, -0.5  # both on the tall cell's side, none at (80, 80)
+    logits[2, 80, 80] = -20.0
+    gctn = MapToyGctn(logits)
+
+    def roots(order_branch: bool):
+        config = PlannerConfig(k=2, depth=1, proposals="nms", order_branch=order_branch)
+        plan = TreeSearch(gctn, StillVf(), config).search(current, goal)
+        return [tuple(n.place.tolist()) for n in plan.nodes]
+
+    assert roots(False) == [(80, 120), (80, 100)]
+    assert roots(True) == [(80, 120), (80, 80)]  # the finishing cell, with the GCTN's best there

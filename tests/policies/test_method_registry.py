@@ -71,7 +71,8 @@ def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
     assert isinstance(make_policy(PolicySpec("gctn")).model.gctn, GoalMaskedGCTN)  # the GCTN's default
     assert type(make_policy(PolicySpec("gctn", goal_mask=False)).model.gctn) is GCTN  # the paper's
     assert isinstance(make_policy(PolicySpec("tvf-small")).search.gctn.gctn, GoalMaskedGCTN)
-    assert type(make_policy(PolicySpec("tvf-large")).search.gctn.gctn) is GCTN  # TVF-L did not gain
+    assert isinstance(make_policy(PolicySpec("tvf-large")).search.gctn.gctn, GoalMaskedGCTN)
+    assert type(make_policy(PolicySpec("tvf-large", goal_mask=False)).search.gctn.gctn) is GCTN
     with pytest.raises(TvfError, match="oracle has no GCTN to mask; --goal-mask needs gctn"):
         make_policy(PolicySpec("oracle", goal_mask=True))
 
@@ -82,7 +83,8 @@ def test_the_spec_refine_yaw_reaches_the_policy_and_needs_a_gctn():
     assert make_policy(PolicySpec("gctn")).refine_yaw is True  # the GCTN's and TVF-S's default
     assert make_policy(PolicySpec("tvf-small")).refine_yaw is True
     assert make_policy(PolicySpec("gctn", refine_yaw=False)).refine_yaw is False  # the paper's
-    assert make_policy(PolicySpec("tvf-large")).refine_yaw is False  # TVF-L did not gain
+    assert make_policy(PolicySpec("tvf-large")).refine_yaw is True  # with the mask (docs/results.md)
+    assert make_policy(PolicySpec("tvf-large", refine_yaw=False)).refine_yaw is False
     with pytest.raises(TvfError, match="oracle does not turn blocks by rotation bins; --refine-yaw needs"):
         make_policy(PolicySpec("oracle", refine_yaw=True))
 
@@ -94,7 +96,18 @@ def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
     with pytest.raises(TvfError, match="unknown --mask-places 'tallest'; choose one of gap, centred"):
         make_policy(PolicySpec("gctn", mask_places="tallest"))
     with pytest.raises(TvfError, match="tvf-large does not use here; add --goal-mask True"):
-        make_policy(PolicySpec("tvf-large", mask_places="ordered"))  # TVF-L is unmasked by default
+        make_policy(PolicySpec("tvf-large", goal_mask=False, mask_places="ordered"))
+
+
+def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():
+    policy = make_policy(PolicySpec("tvf-large", goal_mask=True, order_branch=True, gamma=0.999))
+    assert policy.search.config.order_branch is True and policy.search.config.gamma == 0.999
+    assert make_policy(PolicySpec("tvf-small")).search.config.order_branch is False  # the paper's
+    with pytest.raises(TvfError, match="--order-branch proposes the goal mask's ordered places, which this "
+                       "tvf-large does not use; add --goal-mask True"):  # fmt: skip
+        make_policy(PolicySpec("tvf-large", goal_mask=False, order_branch=True))
+    with pytest.raises(TvfError, match=r"gamma must be in \(0, 1\], got 2.0; fix the planner flags"):
+        make_policy(PolicySpec("tvf-large", gamma=2.0))
 
 
 def test_labels_and_unknown_methods():

@@ -64,6 +64,17 @@ class PlannerFlags:
     block and of the goal's block at the place, read from the two height maps (no training;
     docs/planner.md); False: the GCTN's rotation bin as it is (the paper's); default: the method's."""
 
+    order_branch: bool | None = None
+    """TVF with the goal mask: True makes one proposal of every node the best place of the mask's ordered
+    rule (the middle of a region to fill, first where one block finishes it: a bridge waits for its
+    columns), so the search weighs it against the GCTN's own places (docs/planner.md); default: the
+    method's (False: the paper's proposals)."""
+
+    gamma: float | None = None
+    """TVF: the discount per search level in the score gamma^(d-1) (1 - D) (default 0.99, the paper's).
+    Closer to 1 ranks deeper imagined progress higher: an imagined block lowers D by about 0.01, what the
+    paper's discount costs a level (docs/planner.md)."""
+
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
         """The policy these flags choose for ``method``."""
@@ -72,7 +83,7 @@ class PlannerFlags:
         return PolicySpec(
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
-            self.goal_mask, self.mask_places, self.refine_yaw,
+            self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
         )  # fmt: skip
 
 

@@ -104,7 +104,7 @@ def centred_places(allowed: torch.Tensor, share: float = CENTRED_SHARE) -> torch
     return allowed & (fit >= share * best)
 
 
-def _masked(logits: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
+def restricted(logits: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
     """``logits`` (B, ..., H, W) with the pixels outside ``allowed`` (B, H, W) at :data:`MASKED_LOGIT`."""
     view = allowed.view(allowed.shape[0], *([1] * (logits.dim() - 3)), *allowed.shape[-2:])
     return torch.where(view, logits, torch.full_like(logits, MASKED_LOGIT))
@@ -127,7 +127,7 @@ class GoalMaskedGCTN(GctnWrapper):
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The GCTN's pick logits (B, H, W), masked outside :func:`pick_allowed`."""
-        return _masked(self.gctn.pick_logits(current, goal), pick_allowed(current, goal, self.margin))
+        return restricted(self.gctn.pick_logits(current, goal), pick_allowed(current, goal, self.margin))
 
     def place_maps(
         self,
@@ -140,7 +140,7 @@ class GoalMaskedGCTN(GctnWrapper):
         goal image is needed even when ``goal_features`` are given."""
         goal = _require_goal(goal)
         maps = self.gctn.place_maps(current, goal, picks, goal_features)
-        return _masked(maps, place_allowed(current, goal, self.margin, self.places))
+        return restricted(maps, place_allowed(current, goal, self.margin, self.places))
 
 
 def goal_masked(gctn: GCTN, mask: bool, places: str = "gap") -> GCTN | GoalMaskedGCTN:

@@ -248,3 +248,21 @@ def place_proposals(
         rule_proposals(logits[b], k, alpha=alpha, top_n=top_n, seed=seed, **rule)
         for b in range(logits.shape[0])
     ]
+
+
+def with_extra_place(props: Proposals, logits: torch.Tensor, pick: np.ndarray, k: int, radius: float
+                     ) -> Proposals:  # fmt: skip
+    """``props`` (with picks) and, at ``pick``, the best place of ``logits`` (R, H, W): appended when there
+    are fewer than ``k`` proposals, else in place of the last one; unchanged when a proposal already lies
+    within ``radius`` pixels of it, or when ``k`` is 1 (the greedy action stays)."""
+    extra = _greedy(logits.detach().float().cpu())
+    if k < 2 or np.hypot(*(props.places - extra.places[0]).T).min() < radius:
+        return props
+    keep = slice(0, min(len(props), k - 1))
+    picks = props.picks if props.picks is not None else np.repeat(np.asarray(pick)[None], len(props), 0)
+    return Proposals(
+        np.concatenate([props.places[keep], extra.places]).astype(np.int64),
+        np.concatenate([props.rotations[keep], extra.rotations]).astype(np.int64),
+        np.concatenate([props.logits[keep], extra.logits]).astype(np.float64),
+        np.concatenate([picks[keep], np.asarray(pick, dtype=np.int64).reshape(1, 2)]).astype(np.int64),
+    )

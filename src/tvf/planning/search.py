@@ -27,9 +27,17 @@ import torch
 
 from tvf.device import mixes_environments
 from tvf.models.gctn import argmax_pixels
+from tvf.models.goal_mask import place_allowed, restricted
 from tvf.models.images import RGBH_CHANNELS
 from tvf.models.symmetry import SymmetrizedGCTN
-from tvf.planning.proposals import BLOCK_PIXELS, RULES, Proposals, node_proposals, pick_peaks
+from tvf.planning.proposals import (
+    BLOCK_PIXELS,
+    RULES,
+    Proposals,
+    node_proposals,
+    pick_peaks,
+    with_extra_place,
+)
 
 HEIGHT_CHANNEL = RGBH_CHANNELS - 1
 
@@ -77,6 +85,12 @@ class PlannerConfig:
     """Root actions whose best node scores within this of the tree's best are ties, decided by the
     order of the root proposals (the GCTN's); 0: the best node's action, the paper's rule. One
     misplaced block moves a score by about 0.015; sub-millimetre sensor changes move it by about 1e-4."""
+    order_branch: bool = False
+    """With a goal-masked GCTN (:mod:`tvf.models.goal_mask`): one proposal of every node is the best place
+    the mask's ``ordered`` rule keeps at the node's best pick (the middle of a region to fill, first where
+    one block finishes it: a bridge waits for its columns), in place of the node's last proposal unless a
+    proposal already lies within half a block of it. The greedy GCTN often ranks such a place under one
+    a layer too low; the search then weighs both by their imagined outcomes (docs/planner.md)."""
     root_k: int | None = None
     """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
     A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
@@ -101,6 +115,8 @@ class PlannerConfig:
             raise ValueError(f"nms_rotation must be None or degrees in [0, 180), got {self.nms_rotation}")
         if self.turns_depth is not None and self.turns_depth < 1:
             raise ValueError(f"turns_depth must be None or at least 1, got {self.turns_depth}")
+        if not 0 < self.gamma <= 1:
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
         if not 0 < self.alpha <= 1:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
         if not (math.isfinite(self.tie_band) and self.tie_band >= 0):
@@ -267,10 +283,11 @@ class TreeSearch:
     def _propose(self, frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor, level: int,
                  mix: bool):  # fmt: skip
         """GCTN on every state: its picks (list of (n_i, 2)), its place logits at them (list of
-        (n_i, R, H, W)) and the pick logits (N, H, W)."""
+        (n_i, R, H, W)), the pick logits (N, H, W) and, with ``order_branch``, each state's place logits at
+        its best pick restricted to the ordered places (list of (R, H, W); else Nones)."""
         gctn, goal_features = self._gctn_at(level, goal_features)
         states, roots = frontier.states, frontier.roots
-        picks, places, pick_logits = [], [], []
+        picks, places, pick_logits, ordered = [], [], [], []
         for part in self._parts(roots, mix):
             rows = self._root_rows(roots, part)
             logits = gctn.pick_logits(states[part], goals[rows])
@@ -282,15 +299,24 @@ class TreeSearch:
             places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]
             picks += sets
             pick_logits.append(logits)
-        return picks, places, torch.cat(pick_logits)
+            if self.config.order_branch:
+                keep = place_allowed(states[part], goals[rows], rule="ordered")
+                ordered += list(restricted(maps[:, 0], keep))
+            else:
+                ordered += [None] * len(sets)
+        return picks, places, torch.cat(pick_logits), ordered
 
-    def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor, level: int) -> Proposals:
+    def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor, level: int,
+                   ordered: torch.Tensor | None = None) -> Proposals:  # fmt: skip
         cfg = self.config
         period = place_logits.shape[1] * 360.0 / self.n_rotations  # degrees the channels cover
-        return node_proposals(
+        props = node_proposals(
             place_logits, picks, cfg.k_at(level), rule=cfg.proposals, alpha=cfg.alpha, top_n=cfg.top_n,
             seed=cfg.seed, radius=cfg.nms_radius, rotation_tolerance=cfg.nms_rotation, period=period,
         )  # fmt: skip
+        if ordered is None:
+            return props
+        return with_extra_place(props, ordered, picks[0], cfg.k_at(level), BLOCK_PIXELS / 2)
 
     @torch.no_grad()
     def _imagine(self, states: torch.Tensor, roots: np.ndarray, goals: torch.Tensor, picks, places, yaws,
@@ -343,8 +369,10 @@ class TreeSearch:
         """Propose, imagine and score the children of every frontier state; add them to their roots' plans
         and return them, the next frontier."""
         cfg = self.config
-        picks, place_logits, pick_logits = self._propose(frontier, goals, goal_features, level, mix)
-        proposals = [self._proposals(p, m, level) for p, m in zip(picks, place_logits, strict=True)]
+        picks, place_logits, pick_logits, ordered = self._propose(frontier, goals, goal_features, level, mix)
+        proposals = [
+            self._proposals(p, m, level, o) for p, m, o in zip(picks, place_logits, ordered, strict=True)
+        ]
         if level == 1:  # one row per root
             for plan, logits, maps, props in zip(plans, pick_logits, place_logits, proposals, strict=True):
                 plan.pick_logits, plan.place_logits, plan.root_proposals = logits, maps[0], props

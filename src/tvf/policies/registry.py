@@ -20,7 +20,8 @@ from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 
 PLANNER_OPTIONS = (
-    "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k"
+    "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
+    "order_branch", "gamma",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -68,6 +69,11 @@ class PolicySpec:
     """Correct the place's turn, by at most two 10° bins, to the block yaws read from the current and the
     goal height maps (:mod:`tvf.planning.yaw`; None: the method's, ``Method.refine_yaw``; False: the
     paper's)."""
+
+    order_branch: bool | None = None
+    """TVF with the goal mask: one proposal per node is the best place of the mask's ordered rule."""
+    gamma: float | None = None
+    """TVF: the discount per level of the search's score (None: the method's, the paper's 0.99)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -164,8 +170,9 @@ METHODS: dict[str, Method] = {
             refine_yaw=True,
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
-        # unmasked (neither the plain mask nor its ordered places held up; docs/results.md, "Which
-        # places the mask keeps"); the paper's rule is --proposals kmeans --pick-branches 1 --turns 1
+        # masked and refined together (either alone did not gain; docs/results.md, "TVF-L with the mask
+        # and the refinement together"); the paper's rule is --proposals kmeans --pick-branches 1
+        # --turns 1 --goal-mask False --refine-yaw False
         Method(
             "tvf-large",
             "TVF-L",
@@ -173,6 +180,8 @@ METHODS: dict[str, Method] = {
             ("gctn", "vf"),
             PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1),
             turns=8,
+            goal_mask=True,
+            refine_yaw=True,
         ),
     )
 }
@@ -210,8 +219,9 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
 def make_policy(spec: PolicySpec, env=None) -> Policy:
     """A new policy for ``spec`` (models are loaded here; errors name the bad flag or file)."""
     method = get_method(spec.method)
-    if method.planner is not None:
-        planner_of(spec)  # a bad K or depth fails before any model is read
+    if method.planner is not None and planner_of(spec).order_branch and not goal_mask_of(spec):
+        raise TvfError("--order-branch proposes the goal mask's ordered places, which this "
+                       f"{spec.method} does not use; add --goal-mask True")  # fmt: skip
     if spec.turns is not None:
         if "gctn" not in method.models:
             raise TvfError(
