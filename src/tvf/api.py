@@ -98,8 +98,6 @@ def load_planner(
     unknown = sorted(set(planner) - set(PLANNER_OPTIONS))
     if unknown:
         raise TvfError(f"unknown planner option {unknown[0]!r}; choose one of {', '.join(PLANNER_OPTIONS)}")
-    if planner and method not in PLANNER_METHODS:
-        raise TvfError(f"{method} does not search; planner options need one of {', '.join(PLANNER_METHODS)}")
     spec = PolicySpec(
         method,
         gctn=gctn,

@@ -108,6 +108,9 @@ def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():
         make_policy(PolicySpec("tvf-large", goal_mask=False, order_branch=True))
     with pytest.raises(TvfError, match=r"gamma must be in \(0, 1\], got 2.0; fix the planner flags"):
         make_policy(PolicySpec("tvf-large", gamma=2.0))
+    with pytest.raises(TvfError, match=r"gctn does not search; planner options need one of tvf-small, "
+                       r"tvf-large \(drop --tie-band, --order-branch\)"):  # fmt: skip
+        make_policy(PolicySpec("gctn", tie_band=0.001, order_branch=True))  # not silently ignored
 
 
 def test_labels_and_unknown_methods():

@@ -219,9 +219,15 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
 def make_policy(spec: PolicySpec, env=None) -> Policy:
     """A new policy for ``spec`` (models are loaded here; errors name the bad flag or file)."""
     method = get_method(spec.method)
-    if method.planner is not None and planner_of(spec).order_branch and not goal_mask_of(spec):
-        raise TvfError("--order-branch proposes the goal mask's ordered places, which this "
-                       f"{spec.method} does not use; add --goal-mask True")  # fmt: skip
+    if method.planner is None and spec.planner_overrides():
+        names = ", ".join("--" + name.replace("_", "-") for name in spec.planner_overrides())
+        raise TvfError(f"{spec.method} does not search; planner options need one of "
+                       f"{', '.join(PLANNER_METHODS)} (drop {names})")  # fmt: skip
+    if method.planner is not None:
+        planner = planner_of(spec)  # a bad K or depth fails before any model is read
+        if planner.order_branch and not goal_mask_of(spec):
+            raise TvfError("--order-branch proposes the goal mask's ordered places, which this "
+                           f"{spec.method} does not use; add --goal-mask True")  # fmt: skip
     if spec.turns is not None:
         if "gctn" not in method.models:
             raise TvfError(
