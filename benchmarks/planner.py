@@ -10,7 +10,7 @@ e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching ove
 ``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``, and ``+tdepthD`` does so at
 the first D levels only, ``--turns-depth``; ``+rootR``, ``+kK`` and ``+depthD`` set ``--root-k``, ``--k`` and
 ``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree; ``+mask``
-adds ``--goal-mask``).
+adds ``--goal-mask`` and ``+alphaA`` sets ``--alpha``, e.g. ``+alpha0.001``).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -64,7 +64,7 @@ def first_observation(task: str, seed: int = 1):
 def rule_config(rule: str) -> tuple[dict, int, bool]:
     """PlannerConfig fields, GCTN turns and goal mask of a rule name: kmeans | nms | nms+picksP, each
     optionally +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR,
-    +kK, +depthD, +mask (tvf.models.goal_mask)."""
+    +kK, +depthD, +mask (tvf.models.goal_mask), +alphaA (``--alpha``)."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
     turns, mask = 1, False
@@ -77,6 +77,8 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
             fields["turns_depth"] = int(option[len("tdepth") :])
         elif option == "mask":
             mask = True
+        elif option.startswith("alpha"):
+            fields["alpha"] = float(option[len("alpha") :])
         elif option.startswith("root"):
             fields["root_k"] = int(option[len("root") :])
         elif option.startswith("depth"):
@@ -86,7 +88,7 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
         else:
             raise SystemExit(
                 f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK, "
-                "+depthD or +mask"
+                "+depthD, +mask or +alphaA"
             )
     return fields, turns, mask
 

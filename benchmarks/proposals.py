@@ -21,10 +21,11 @@ plan one level (K proposals, their imagined outcomes) under each rule. Per rule 
 
 With ``--methods tvf-large[,...]`` each named method is measured too, as the registry builds it (its
 GCTN symmetrised and goal-masked as shipped, its planner settings; ``--order-branch`` adds each method
-with one ordered place per node, which needs its goal mask): rows ``method:NAME``.
+with one ordered place per node, which needs its goal mask; ``--alphas 0.001,...`` adds each method
+with each of those alphas): rows ``method:NAME``.
 
 Prints one JSON object. Usage: python benchmarks/proposals.py [--seeds 10] [--mid 5] [--k 3]
-[--threads 1] [--large 2] [--methods tvf-large] [--order-branch] [--only-methods]
+[--threads 1] [--large 2] [--methods tvf-large] [--order-branch] [--only-methods] [--alphas A,...]
 """
 
 from __future__ import annotations
@@ -175,6 +176,7 @@ def main() -> None:
     parser.add_argument("--methods", default="", help="comma-separated methods measured as shipped")
     parser.add_argument("--order-branch", action="store_true", help="also each method with --order-branch")
     parser.add_argument("--only-methods", action="store_true", help="skip the plain GCTN's rule rows")
+    parser.add_argument("--alphas", default="", help="comma-separated alphas: each method also with each")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     gctn, vf = load_trained(None, "gctn"), load_trained(None, "vf")
@@ -185,9 +187,15 @@ def main() -> None:
         for name, changes in rules.items()
     }
     for method in filter(None, args.methods.split(",")):
-        for order in (False, True) if args.order_branch else (False,):
-            policy = make_policy(PolicySpec(method, order_branch=order or None, device="cpu"))
-            name = f"method:{method}" + ("+order-branch" if order else "")
+        alphas = [None, *(float(a) for a in filter(None, args.alphas.split(",")))]
+        for order, alpha in itertools.product((False, True) if args.order_branch else (False,), alphas):
+            spec = PolicySpec(method, order_branch=order or None, alpha=alpha, device="cpu")
+            policy = make_policy(spec)
+            name = (
+                f"method:{method}"
+                + ("+order-branch" if order else "")
+                + (f"+alpha={alpha:g}" if alpha else "")
+            )
             results[name] = evaluate(policy.search.gctn, vf, policy.search.config, items, args.large)
     meta = {
         "k": args.k,

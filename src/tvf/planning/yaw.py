@@ -12,9 +12,11 @@ this block world yaws (modulo the cube's 90° symmetry) can be read from the top
   do not see into 1 cm gaps), so the yaw is the dominant direction of the height edges around the
   place, read as four times the gradient angle.
 
-The turn that brings the one to the other is :func:`refined_turn`; it replaces the GCTN's turn only when
-both readings are clear and it lies within :data:`MAX_CHANGE` of the GCTN's turn (the GCTN's choice,
-corrected, never overruled). Yaws are world yaws, which in (col, row) pixel coordinates are image
+The turn that brings the one to the other is :func:`refined_turn`; it replaces the GCTN's turn whenever
+both readings are clear (modulo the cube's quarter turn, so by at most 45°); where a reading is unclear
+the GCTN's turn stays. The first version corrected by at most two `lite` bins (20°); a search
+was then seen to execute a proposal 40° off, a turn its foresight cannot see (docs/results.md, "Clear
+readings set the turn"). Yaws are world yaws, which in (col, row) pixel coordinates are image
 angles (tvf.geometry).
 """
 
@@ -44,9 +46,6 @@ BLUR_REACH = 4
 """Pixels a one-pixel Gaussian blur reaches (scipy truncates it at 4 sigma)."""
 MIN_EDGE = 0.005
 """Metres per pixel (after a one-pixel Gaussian blur): the height gradients counted as edges."""
-MAX_CHANGE = math.radians(20.0)
-"""A refined turn differs from the GCTN's by at most two `lite` rotation bins (the GCTN's wrong turns
-seen on validation seeds were 15-18° off; each reading is good to about 3°)."""
 ANGLES = np.radians(np.arange(-45.0, 45.0, 0.5))
 """Candidate yaws of a face, over one symmetry period."""
 PLATEAU = 0.01
@@ -119,11 +118,9 @@ def refined_turn(
 ) -> float:
     """The GCTN's ``turn`` (radians) corrected to bring the block at ``pick`` (in ``height``) to the yaw
     of the goal's structure at ``place`` (in ``goal_height``); ``turn`` itself where the block's face is
-    not clearly a square, the goal's edges do not agree on a direction, or the correction would exceed
-    :data:`MAX_CHANGE`."""
+    not clearly a square or the goal's edges do not agree on a direction."""
     block, fit = face_yaw(height, pick)
     target, agreement = structure_yaw(goal_height, place)
     if fit < MIN_FIT or agreement < MIN_AGREEMENT:
         return turn
-    change = float(wrap_symmetric(target - block - turn, BLOCK_SYMMETRY))
-    return turn + change if abs(change) <= MAX_CHANGE else turn
+    return turn + float(wrap_symmetric(target - block - turn, BLOCK_SYMMETRY))
