@@ -158,9 +158,9 @@ def test_a_goal_masked_planner_picks_a_block_the_goal_does_not_have_there(scene)
     assert place_allowed(current, target)[0][tuple(decision.place_pixel)]
 
 
-def test_a_refined_planner_turns_the_block_to_the_goals_yaw_within_two_bins(scene):
+def test_a_refined_planner_turns_the_block_to_the_goals_yaw(scene):
     from tvf.geometry import wrap_symmetric
-    from tvf.planning.yaw import MAX_CHANGE, face_yaw, structure_yaw
+    from tvf.planning.yaw import face_yaw, structure_yaw
     from tvf.tasks import BLOCK_SYMMETRY
 
     _, obs = scene
@@ -170,7 +170,6 @@ def test_a_refined_planner_turns_the_block_to_the_goals_yaw_within_two_bins(scen
         obs["color"], obs["height"], goal["color"], goal["height"]
     )
     assert (refined.pick_pixel, refined.place_pixel) == (plain.pick_pixel, plain.place_pixel)
-    assert abs(refined.place[3] - plain.place[3]) <= MAX_CHANGE + 1e-9
     block, _ = face_yaw(obs["height"], np.array(refined.pick_pixel))
     target, _ = structure_yaw(goal["height"], np.array(refined.place_pixel))
     needed = target - block  # the turn that leaves the block at the goal's yaw
