@@ -186,8 +186,8 @@ def main() -> None:
         name: evaluate(gctn, vf, PlannerConfig(k=args.k, depth=1, **changes), items, args.large)
         for name, changes in rules.items()
     }
+    alphas = [None, *(float(a) for a in filter(None, args.alphas.split(",")))]
     for method in filter(None, args.methods.split(",")):
-        alphas = [None, *(float(a) for a in filter(None, args.alphas.split(",")))]
         for order, alpha in itertools.product((False, True) if args.order_branch else (False,), alphas):
             spec = PolicySpec(method, order_branch=order or None, alpha=alpha, device="cpu")
             policy = make_policy(spec)

@@ -219,8 +219,9 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
 def make_policy(spec: PolicySpec, env=None) -> Policy:
     """A new policy for ``spec`` (models are loaded here; errors name the bad flag or file)."""
     method = get_method(spec.method)
-    if method.planner is None and spec.planner_overrides():
-        names = ", ".join("--" + name.replace("_", "-") for name in spec.planner_overrides())
+    overrides = spec.planner_overrides()
+    if method.planner is None and overrides:
+        names = ", ".join("--" + name.replace("_", "-") for name in overrides)
         raise TvfError(f"{spec.method} does not search; planner options need one of "
                        f"{', '.join(PLANNER_METHODS)} (drop {names})")  # fmt: skip
     if method.planner is not None:
