@@ -6,9 +6,11 @@ it allows places, and how much of the image each mask leaves. It reads only the 
 (no learned model). Prints one JSON object: ``steps``, ``pick_kept`` / ``place_kept`` (the fractions of
 expert actions inside the masks), ``pick_share`` / ``place_share`` (the mean fraction of pixels each
 mask allows) and the steps that fell outside, if any. ``--places RULE`` checks the places against one of
-the mask's place rules (``--mask-places``: gap, centred, bottom-up, ordered).
+the mask's place rules (``--mask-places``: gap, centred, bottom-up, ordered), ``--share S`` with the
+centring's share (``--centred-share``).
 
 Usage: python benchmarks/goal_mask.py [--tasks unseen] [--seeds 2] [--max-steps 12] [--places gap]
+[--share 0.9]
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import torch
 
 import tvf.envs  # noqa: F401  (registers the environments)
 from tvf.geometry import world_to_pixel
-from tvf.models.goal_mask import PLACE_RULES, pick_allowed, place_allowed
+from tvf.models.goal_mask import CENTRED_SHARE, PLACE_RULES, pick_allowed, place_allowed
 from tvf.policies.learned import observation_tensor
 from tvf.sim.factory import sim_env
 from tvf.tasks import BUILTIN
@@ -49,6 +51,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=2, help="validation seeds per task (1, 3, ...)")
     parser.add_argument("--max-steps", type=int, default=12)
     parser.add_argument("--places", default="gap", choices=PLACE_RULES, help="the mask's place rule")
+    parser.add_argument(
+        "--share", type=float, default=CENTRED_SHARE, help="centred and ordered: the centring's share"
+    )
     args = parser.parse_args()
     cpu = torch.device("cpu")
     kept, shares, misses = [], [], []
@@ -58,7 +63,7 @@ def main() -> None:
                 current, target = observation_tensor(obs, cpu), observation_tensor(goal, cpu)
                 picks, places = (
                     pick_allowed(current, target)[0].numpy(),
-                    place_allowed(current, target, rule=args.places)[0].numpy(),
+                    place_allowed(current, target, rule=args.places, share=args.share)[0].numpy(),
                 )
                 pick, place = world_to_pixel(action[0, :2]), world_to_pixel(action[1, :2])
                 inside = (bool(picks[tuple(pick)]), bool(places[tuple(place)]))
@@ -68,7 +73,8 @@ def main() -> None:
                     misses.append({"task": task.name, "seed": seed, "step": step, "pick_kept": inside[0]})
     kept_mean, share_mean = np.mean(kept, axis=0), np.mean(shares, axis=0)
     print(json.dumps({
-        "tasks": args.tasks, "seeds": args.seeds, "places": args.places, "steps": len(kept),
+        "tasks": args.tasks, "seeds": args.seeds, "places": args.places, "share": args.share,
+        "steps": len(kept),
         "pick_kept": float(kept_mean[0]), "place_kept": float(kept_mean[1]),
         "pick_share": float(share_mean[0]), "place_share": float(share_mean[1]), "misses": misses,
     }, indent=1))  # fmt: skip

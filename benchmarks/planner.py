@@ -64,7 +64,7 @@ def first_observation(task: str, seed: int = 1):
 def rule_config(rule: str) -> tuple[dict, int, bool]:
     """PlannerConfig fields, GCTN turns and goal mask of a rule name: kmeans | nms | nms+picksP, each
     optionally +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR,
-    +kK, +depthD, +mask (tvf.models.goal_mask), +alphaA (``--alpha``)."""
+    +kK, +depthD, +mask (tvf.models.goal_mask), +alphaA (``--alpha``), +rootalphaA (``--root-alpha``)."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
     turns, mask = 1, False
@@ -79,6 +79,8 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
             mask = True
         elif option.startswith("alpha"):
             fields["alpha"] = float(option[len("alpha") :])
+        elif option.startswith("rootalpha"):
+            fields["root_alpha"] = float(option[len("rootalpha") :])
         elif option.startswith("root"):
             fields["root_k"] = int(option[len("root") :])
         elif option.startswith("depth"):
@@ -88,7 +90,7 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
         else:
             raise SystemExit(
                 f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK, "
-                "+depthD, +mask or +alphaA"
+                "+depthD, +mask, +alphaA or +rootalphaA"
             )
     return fields, turns, mask
 

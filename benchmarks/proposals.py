@@ -22,10 +22,11 @@ plan one level (K proposals, their imagined outcomes) under each rule. Per rule 
 With ``--methods tvf-large[,...]`` each named method is measured too, as the registry builds it (its
 GCTN symmetrised and goal-masked as shipped, its planner settings; ``--order-branch`` adds each method
 with one ordered place per node, which needs its goal mask; ``--alphas 0.001,...`` adds each method
-with each of those alphas): rows ``method:NAME``.
+with each of those alphas, ``--root-alphas`` with each as ``--root-alpha``): rows ``method:NAME``.
 
 Prints one JSON object. Usage: python benchmarks/proposals.py [--seeds 10] [--mid 5] [--k 3]
 [--threads 1] [--large 2] [--methods tvf-large] [--order-branch] [--only-methods] [--alphas A,...]
+[--root-alphas A,...]
 """
 
 from __future__ import annotations
@@ -177,6 +178,9 @@ def main() -> None:
     parser.add_argument("--order-branch", action="store_true", help="also each method with --order-branch")
     parser.add_argument("--only-methods", action="store_true", help="skip the plain GCTN's rule rows")
     parser.add_argument("--alphas", default="", help="comma-separated alphas: each method also with each")
+    parser.add_argument(
+        "--root-alphas", default="", help="comma-separated root alphas: each method also with each"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     gctn, vf = load_trained(None, "gctn"), load_trained(None, "vf")
@@ -186,15 +190,16 @@ def main() -> None:
         name: evaluate(gctn, vf, PlannerConfig(k=args.k, depth=1, **changes), items, args.large)
         for name, changes in rules.items()
     }
-    alphas = [None, *(float(a) for a in filter(None, args.alphas.split(",")))]
+    alphas = [{}, *({"alpha": float(a)} for a in filter(None, args.alphas.split(",")))]
+    alphas += [{"root_alpha": float(a)} for a in filter(None, args.root_alphas.split(","))]
     for method in filter(None, args.methods.split(",")):
         for order, alpha in itertools.product((False, True) if args.order_branch else (False,), alphas):
-            spec = PolicySpec(method, order_branch=order or None, alpha=alpha, device="cpu")
+            spec = PolicySpec(method, order_branch=order or None, device="cpu", **alpha)
             policy = make_policy(spec)
             name = (
                 f"method:{method}"
                 + ("+order-branch" if order else "")
-                + (f"+alpha={alpha:g}" if alpha else "")
+                + "".join(f"+{field.replace('_', '-')}={value:g}" for field, value in alpha.items())
             )
             results[name] = evaluate(policy.search.gctn, vf, policy.search.config, items, args.large)
     meta = {

@@ -258,3 +258,19 @@ def test_eval_records_the_mask_places_and_refuses_to_resume_with_another_rule(
     code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", "--mask-places", "ordered",
                        *args)  # fmt: skip
     assert code == 2 and "add --goal-mask True" in err
+
+
+def test_eval_records_a_centred_share_and_root_alpha_and_resumes_only_with_them(
+    capsys, tmp_path, smoke_weights
+):
+    weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
+    args = (*weights, "--tasks", "stack-stair", "--episodes", "1", "--out", str(tmp_path / "e"))
+    chosen = ("--mask-places", "ordered", "--centred-share", "0.75", "--root-alpha", "0.001")
+    code, _, err = run(capsys, "eval", "--method", "tvf-small", *chosen, *args)
+    assert code == 0, err
+    recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
+    assert recorded["centred_share"] == 0.75 and recorded["root_alpha"] == 0.001
+    code, _, err = run(capsys, "eval", "--method", "tvf-small", "--mask-places", "ordered", *args)
+    assert code == 2 and "other centred_share, root_alpha" in err, err
+    code, _, err = run(capsys, "eval", "--method", "tvf-small", "--centred-share", "0.75", *args)
+    assert code == 2 and "--centred-share sets how the goal mask centres its places" in err, err

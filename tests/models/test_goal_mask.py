@@ -12,6 +12,7 @@ from tvf.models.goal_mask import (
     GoalMaskedGCTN,
     centred_places,
     goal_masked,
+    mask_of,
     pick_allowed,
     place_allowed,
 )
@@ -146,3 +147,31 @@ def test_ordered_places_are_centred_and_bottom_up_and_an_unknown_rule_is_refused
     assert ordered[tuple(place[0].tolist())]
     with pytest.raises(ValueError, match="unknown place rule 'tallest'; choose one of gap, centred"):
         place_allowed(ground_floor, goal, rule="tallest")
+
+
+def test_a_lower_centred_share_keeps_more_of_each_region_around_its_middle() -> None:
+    current, goal = _scene()
+    shares = (1.0, 0.9, 0.75, 0.6)
+    kept = [place_allowed(current, goal, rule="centred", share=s)[0] for s in shares]
+    counts = [int(k.sum()) for k in kept]
+    assert counts == sorted(counts) and counts[0] < counts[-1]  # each lower share a superset, larger
+    for narrow, wide in zip(kept, kept[1:], strict=False):
+        assert (narrow <= wide).all()
+    # a pixel off the middle loses 1/13 of its footprint a step: 0.75 keeps three steps either way
+    assert kept[2][TARGET[0], TARGET[1] + 3] and not kept[2][TARGET[0], TARGET[1] + 4]
+    assert (kept[-1] <= place_allowed(current, goal)[0]).all()  # still inside the gap rule's places
+    with pytest.raises(ValueError, match=r"the centred share must be in \(0, 1\], got 0"):
+        GoalMaskedGCTN(GCTN(QUARTER, seed=3).eval(), places="ordered", share=0.0)
+
+
+def test_the_mask_under_a_symmetrising_wrapper_is_found_with_its_settings() -> None:
+    plain = GCTN(QUARTER, seed=3).eval()
+    masked = goal_masked(plain, True, places="ordered", share=0.75)
+    assert mask_of(SymmetrizedGCTN(masked, 4)) is masked and mask_of(masked) is masked
+    assert mask_of(plain) is None and mask_of(SymmetrizedGCTN(plain, 4)) is None
+    goal, ground_floor = _stacked(BUILDING), _stacked(BUILDING[:2])
+    expected = place_allowed(ground_floor, goal, rule="ordered", share=0.75)
+    assert torch.equal(masked.allowed_places(ground_floor, goal), expected)
+    assert torch.equal(
+        masked.allowed_places(ground_floor, goal, rule="gap"), place_allowed(ground_floor, goal)
+    )

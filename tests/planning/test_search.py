@@ -144,6 +144,25 @@ def test_root_k_widens_the_root_and_keeps_k_below():
     assert plan.first.place.tolist() == [6, 6] and plan.nodes[plan.best].distance == pytest.approx(0.0)
 
 
+def test_root_alpha_lowers_the_threshold_of_the_first_actions_only():
+    """A second place 0.5 % as likely as the best passes alpha 0.001 but not 0.01: with ``root_alpha`` the
+    root has both, deeper nodes keep one child each (the tree stays as pruned as with 0.01)."""
+    logits = torch.full((ROTATIONS, SIZE, SIZE), -50.0)
+    logits[0, 1, 1], logits[0, 6, 6] = 0.0, math.log(0.005)
+
+    def widths(**settings) -> list[int]:
+        config = PlannerConfig(k=2, depth=2, proposals="nms", nms_radius=2.0, **settings)
+        plan = _plan(TreeSearch(MapToyGctn(logits), ToyVf(), config))
+        return [sum(n.depth == d for n in plan.nodes) for d in (1, 2)]
+
+    assert widths() == [1, 1]  # the paper's alpha 0.01 everywhere
+    assert widths(root_alpha=0.001) == [2, 2]
+    assert widths(alpha=0.001) == [2, 4]
+    cfg = PlannerConfig(alpha=0.02, root_alpha=0.001)
+    assert [cfg.alpha_at(level) for level in (1, 2, 3)] == [0.001, 0.02, 0.02]
+    assert PlannerConfig().alpha_at(1) == 0.01
+
+
 def test_pick_branches_are_capped_by_each_level_k():
     cfg = PlannerConfig(k=2, root_k=6, pick_branches=3, depth=3)
     assert [cfg.k_at(level) for level in (1, 2, 3)] == [6, 2, 2]
@@ -562,6 +581,7 @@ def test_the_root_proposals_use_every_planner_setting(settings: dict, defaults_d
         (dict(turns_depth=0), "turns_depth must be None or at least 1, got 0"),
         (dict(alpha=0.0), "alpha must be in (0, 1], got 0.0"),
         (dict(alpha=1.5), "alpha must be in (0, 1], got 1.5"),
+        (dict(root_alpha=0.0), "root_alpha must be None or in (0, 1], got 0.0"),
         (dict(tie_band=-1e-4), "tie_band must be a score difference >= 0, got -0.0001"),
         (dict(tie_band=math.inf), "tie_band must be a score difference >= 0, got inf"),
         (dict(root_k=0), "root_k must be None or at least 1, got 0"),
@@ -588,6 +608,7 @@ def test_config_accepts_the_edges_of_every_range():
         dict(nms_rotation=179.9),
         dict(turns_depth=1),
         dict(alpha=1.0),
+        dict(root_alpha=1.0),
         dict(tie_band=0.0),
         dict(k=2, root_k=4, pick_branches=4),
         dict(k=3, root_k=1),

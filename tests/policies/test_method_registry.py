@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tvf.errors import TvfError
+from tvf.models.goal_mask import CENTRED_SHARE, mask_of
 from tvf.planning.search import PlannerConfig
 from tvf.policies import (
     METHODS,
@@ -30,8 +31,12 @@ def test_planner_presets_and_overrides():
     assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
     assert (small.proposals, small.pick_branches) == ("kmeans", 1)  # the paper's rule
     assert planner_of(PolicySpec("tvf-large", k=2)).pick_branches == 2  # a smaller K shares fewer picks
-    paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1, turns=1))
-    assert replace(paper, turns_depth=None) == PlannerConfig(k=3, depth=3)  # the paper's TVF-L (turns 1)
+    assert large.root_alpha == 0.001 and small.root_alpha is None  # TVF-L's first actions: docs/results.md
+    paper = planner_of(PolicySpec("tvf-large", proposals="kmeans", pick_branches=1, turns=1, root_alpha=0.01))
+    assert replace(paper, turns_depth=None, root_alpha=None) == PlannerConfig(k=3, depth=3)  # the paper's
+    assert paper.alpha_at(1) == paper.alpha_at(2) == 0.01
+    own = planner_of(PolicySpec("tvf-large", alpha=0.5))  # an alpha of one's own holds at the root too
+    assert own.alpha_at(1) == own.alpha_at(2) == 0.5
     assert large.turns_depth == 1 and small.turns_depth == 1
     assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 4, 8]
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
@@ -97,6 +102,18 @@ def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
         make_policy(PolicySpec("gctn", mask_places="tallest"))
     with pytest.raises(TvfError, match="tvf-large does not use here; add --goal-mask True"):
         make_policy(PolicySpec("tvf-large", goal_mask=False, mask_places="ordered"))
+
+
+def test_the_spec_centred_share_and_root_alpha_reach_the_mask_and_the_search():
+    policy = make_policy(PolicySpec("tvf-large", mask_places="ordered", centred_share=0.6, root_alpha=0.001))
+    assert mask_of(policy.search.gctn).share == 0.6 and policy.search.config.root_alpha == 0.001
+    assert mask_of(make_policy(PolicySpec("gctn", mask_places="ordered")).model).share == CENTRED_SHARE
+    with pytest.raises(TvfError, match=r"--centred-share must be a fraction in \(0, 1\], got 1.2"):
+        make_policy(PolicySpec("gctn", mask_places="centred", centred_share=1.2))
+    with pytest.raises(TvfError, match="add --goal-mask True --mask-places ordered"):
+        make_policy(PolicySpec("gctn", centred_share=0.75))  # gap keeps every place: nothing to centre
+    with pytest.raises(TvfError, match=r"drop --root-alpha"):
+        make_policy(PolicySpec("gctn", root_alpha=0.001))
 
 
 def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():

@@ -59,9 +59,13 @@ class PlannerFlags:
     """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
     ordered (centred, then bottom-up); default: the method's (docs/planner.md)."""
+    centred_share: float | None = None
+    """With --mask-places centred or ordered: a place's block footprint must hold this share of the
+    allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
+    lower keeps more of each region; docs/planner.md)."""
     refine_yaw: bool | None = None
-    """GCTN and TVF: True corrects the place's turn, by at most two 10° bins, to the yaws of the picked
-    block and of the goal's block at the place, read from the two height maps (no training;
+    """GCTN and TVF: True sets the place's turn to the yaws of the picked block and of the goal's block at
+    the place, read from the two height maps, where both readings are clear (no training;
     docs/planner.md); False: the GCTN's rotation bin as it is (the paper's); default: the method's."""
 
     order_branch: bool | None = None
@@ -75,6 +79,11 @@ class PlannerFlags:
     Closer to 1 ranks deeper imagined progress higher: an imagined block lowers D by about 0.01, what the
     paper's discount costs a level (docs/planner.md)."""
 
+    root_alpha: float | None = None
+    """TVF: --alpha for the root's proposals only, the first actions (deeper nodes keep --alpha, so the
+    tree stays as pruned); default: the method's (tvf-large 0.001; --alpha alone sets every node's, the
+    root's too)."""
+
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
         """The policy these flags choose for ``method``."""
@@ -84,6 +93,7 @@ class PlannerFlags:
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
+            self.root_alpha, self.centred_share,
         )  # fmt: skip
 
 

@@ -17,8 +17,9 @@ class EvalCmd:
     """Evaluate a method in closed loop; writes episodes.jsonl, summary.json, summary.md (resumable).
 
     Methods (the method registry): oracle (the expert, the ceiling), gctn (greedy GCTN), tvf-small (K=2,
-    depth 1, the paper's proposals) and tvf-large (K=3, depth 3, NMS proposals over 3 picks; the paper's
-    rule: --proposals kmeans --pick-branches 1). Without --gctn / --vf the shipped lite weights are used.
+    depth 1, the paper's proposals) and tvf-large (K=3, depth 3, NMS proposals over 3 picks, its first
+    actions above --root-alpha 0.001; the paper's rule: --proposals kmeans --pick-branches 1 --root-alpha
+    0.01). Without --gctn / --vf the shipped lite weights are used.
     Seeds: the test range by default (never used for a choice); --seed-start 1 is the validation range.
     Example: tvf eval --method tvf-large --tasks unseen --episodes 20 --workers 2 --out eval/tvf-large
     """

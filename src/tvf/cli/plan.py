@@ -147,9 +147,13 @@ class PlanCmd:
     mask_places: str | None = None
     """With the goal mask: gap | centred | bottom-up | ordered, the places it keeps (docs/planner.md);
     default: the method's."""
+    centred_share: float | None = None
+    """With --mask-places centred or ordered: how near a region's middle a place lies (a share of the
+    best-filled footprint; default 0.9, docs/planner.md)."""
     refine_yaw: bool | None = None
-    """True / False: correct the place's turn to the block yaws read from the two height maps, by at most
-    two 10° bins, or keep the GCTN's bin (False: the paper's; docs/planner.md); default: the method's."""
+    """True / False: set the place's turn to the block yaws read from the two height maps where both
+    readings are clear, or keep the GCTN's bin (False: the paper's; docs/planner.md); default: the
+    method's."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
@@ -195,7 +199,8 @@ class PlanCmd:
         search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
                                keep_images=True, turns=self.turns, goal_mask=self.goal_mask,
-                               mask_places=self.mask_places, refine_yaw=self.refine_yaw,
+                               mask_places=self.mask_places, centred_share=self.centred_share,
+                               refine_yaw=self.refine_yaw,
                                **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)

@@ -17,8 +17,17 @@ from tvf.errors import StaleError
 from tvf.evaluate.runner import EpisodeResult, check_envs_per_worker, policy_episode, policy_episodes
 from tvf.io import append_jsonl, as_disk_full, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.models.checkpoint import trained_checkpoint
+from tvf.models.goal_mask import CENTRED_SHARE
 from tvf.parallel import check_backend, run_jobs
-from tvf.policies import PolicySpec, get_method, goal_mask_of, mask_places_of, refine_yaw_of
+from tvf.policies import (
+    PolicySpec,
+    centred_share_of,
+    get_method,
+    goal_mask_of,
+    mask_places_of,
+    planner_of,
+    refine_yaw_of,
+)
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.sim.sensors import get_sensor
@@ -107,7 +116,13 @@ def evaluate(
     meta["goal_mask"] = goal_mask_of(spec) or None
     places = mask_places_of(spec)  # likewise None for the mask's first rule, gap, and for no mask
     meta["mask_places"] = places if goal_mask_of(spec) and places != "gap" else None
+    share = centred_share_of(spec)  # likewise None for the first centring, and where nothing is centred
+    centring = meta["mask_places"] in ("centred", "ordered") and share != CENTRED_SHARE
+    meta["centred_share"] = share if centring else None
     meta["refine_yaw"] = refine_yaw_of(spec) or None  # resolved like the mask; None: the bins' own turns
+    # resolved too (None: alpha at the root as everywhere), so a folder from before TVF-L's lower root
+    # threshold is not resumed under it
+    meta["root_alpha"] = planner_of(spec).root_alpha if get_method(spec.method).planner else None
     meta["weights"] = weights_hashes(spec)
     if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"

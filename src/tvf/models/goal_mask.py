@@ -31,7 +31,8 @@ FOOTPRINT_PX = round(BLOCK_SIZE / PIXEL_SIZE)
 """A block's footprint in pixels (13: 4 cm at 3.125 mm): the window a placed block covers and rests on."""
 
 CENTRED_SHARE = 0.9
-"""A centred place's footprint holds at least this share of the allowed pixels of the best-filled one."""
+"""A centred place's footprint holds at least this share of the allowed pixels of the best-filled one
+(``--centred-share``; about a pixel either way of a region's middle, as each pixel off it loses 1/13)."""
 
 MASKED_LOGIT = -1.0e4
 """The logit of a masked pixel: far below any the GCTN produces, so its softmax share is zero."""
@@ -64,6 +65,13 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 (:func:`finishing_places`); ``ordered`` both, centred first."""
 
 
+def check_centred_share(share: float) -> float:
+    """``share`` if it is a fraction in (0, 1], else a one-line error."""
+    if not 0 < share <= 1:
+        raise ValueError(f"the centred share must be in (0, 1], got {share}")
+    return share
+
+
 def check_place_rule(rule: str) -> str:
     """``rule`` if it is one of :data:`PLACE_RULES`, else a one-line error naming them."""
     if rule not in PLACE_RULES:
@@ -72,14 +80,18 @@ def check_place_rule(rule: str) -> str:
 
 
 def place_allowed(
-    current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M, rule: str = "gap"
+    current: torch.Tensor,
+    goal: torch.Tensor,
+    margin: float = MARGIN_M,
+    rule: str = "gap",
+    share: float = CENTRED_SHARE,
 ) -> torch.Tensor:
     """Where the goal stands more than ``margin`` above the scene: a block the scene still lacks (B, H, W);
-    ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions, to the places that need no
-    block under them first, or both."""
+    ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions (``share``:
+    :func:`centred_places`), to the places that need no block under them first, or both."""
     allowed = _allowed(_height_gap(goal, current), margin)
     if check_place_rule(rule) in ("centred", "ordered"):
-        allowed = centred_places(allowed)
+        allowed = centred_places(allowed, share)
     if rule in ("bottom-up", "ordered"):
         allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)
     return allowed
@@ -119,11 +131,21 @@ def _require_goal(goal: torch.Tensor | None) -> torch.Tensor:
 class GoalMaskedGCTN(GctnWrapper):
     """A GCTN whose pick and place logits are masked by the height difference to the goal."""
 
-    def __init__(self, gctn: GCTN, margin: float = MARGIN_M, places: str = "gap") -> None:
+    def __init__(
+        self, gctn: GCTN, margin: float = MARGIN_M, places: str = "gap", share: float = CENTRED_SHARE
+    ) -> None:
         super().__init__(gctn)
         self.margin = margin
         self.places = check_place_rule(places)
         """The place rule (:data:`PLACE_RULES`)."""
+        self.share = check_centred_share(share)
+        """The ``centred`` and ``ordered`` rules' share (:func:`centred_places`)."""
+
+    def allowed_places(
+        self, current: torch.Tensor, goal: torch.Tensor, rule: str | None = None
+    ) -> torch.Tensor:
+        """:func:`place_allowed` with this mask's margin and share, by ``rule`` (None: its own)."""
+        return place_allowed(current, goal, self.margin, rule or self.places, self.share)
 
     def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The GCTN's pick logits (B, H, W), masked outside :func:`pick_allowed`."""
@@ -140,10 +162,21 @@ class GoalMaskedGCTN(GctnWrapper):
         goal image is needed even when ``goal_features`` are given."""
         goal = _require_goal(goal)
         maps = self.gctn.place_maps(current, goal, picks, goal_features)
-        return restricted(maps, place_allowed(current, goal, self.margin, self.places))
+        return restricted(maps, self.allowed_places(current, goal))
 
 
-def goal_masked(gctn: GCTN, mask: bool, places: str = "gap") -> GCTN | GoalMaskedGCTN:
-    """``gctn`` wrapped in :class:`GoalMaskedGCTN` (keeping places by ``places``) when ``mask``, else
-    itself."""
-    return GoalMaskedGCTN(gctn, places=places) if mask else gctn
+def goal_masked(
+    gctn: GCTN, mask: bool, places: str = "gap", share: float = CENTRED_SHARE
+) -> GCTN | GoalMaskedGCTN:
+    """``gctn`` wrapped in :class:`GoalMaskedGCTN` (keeping places by ``places``, centred by ``share``) when
+    ``mask``, else itself."""
+    return GoalMaskedGCTN(gctn, places=places, share=share) if mask else gctn
+
+
+def mask_of(gctn: GCTN) -> GoalMaskedGCTN | None:
+    """The goal mask among ``gctn``'s wrappers (e.g. under a symmetrising one), or None."""
+    while isinstance(gctn, GctnWrapper):
+        if isinstance(gctn, GoalMaskedGCTN):
+            return gctn
+        gctn = gctn.gctn
+    return None

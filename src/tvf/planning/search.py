@@ -27,7 +27,7 @@ import torch
 
 from tvf.device import mixes_environments
 from tvf.models.gctn import argmax_pixels
-from tvf.models.goal_mask import place_allowed, restricted
+from tvf.models.goal_mask import mask_of, place_allowed, restricted
 from tvf.models.images import RGBH_CHANNELS
 from tvf.models.symmetry import SymmetrizedGCTN
 from tvf.planning.proposals import (
@@ -57,6 +57,9 @@ class PlannerConfig:
     """Levels of imagined actions."""
     alpha: float = 0.01
     """Keep pixels whose place probability is at least alpha times the best."""
+    root_alpha: float | None = None
+    """``alpha`` for the root's proposals only (the first actions; deeper nodes keep ``alpha``, so the tree
+    stays as pruned). None: ``alpha``, the paper's."""
     top_n: int = 100
     """At most this many candidate pixels go into K-means (``kmeans`` rule only)."""
     gamma: float = 0.99
@@ -119,6 +122,8 @@ class PlannerConfig:
             raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
         if not 0 < self.alpha <= 1:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
+        if self.root_alpha is not None and not 0 < self.root_alpha <= 1:
+            raise ValueError(f"root_alpha must be None or in (0, 1], got {self.root_alpha}")
         if not (math.isfinite(self.tie_band) and self.tie_band >= 0):
             raise ValueError(f"tie_band must be a score difference >= 0, got {self.tie_band}")
 
@@ -130,6 +135,10 @@ class PlannerConfig:
     def k_at(self, level: int) -> int:
         """Proposals per node at ``level`` (1: the root's children)."""
         return self.root_k if level == 1 and self.root_k is not None else self.k
+
+    def alpha_at(self, level: int) -> float:
+        """The probability share a candidate needs at ``level`` (1: the root's children)."""
+        return self.root_alpha if level == 1 and self.root_alpha is not None else self.alpha
 
     def pick_branches_at(self, level: int) -> int:
         """Distinct picks per node at ``level``: ``pick_branches``, at most that level's K."""
@@ -277,7 +286,7 @@ class TreeSearch:
         branches = cfg.pick_branches_at(level)
         if branches == 1:
             return [p[None] for p in argmax_pixels(pick_logits).cpu().numpy()]
-        return [pick_peaks(x, branches, cfg.alpha, cfg.nms_radius) for x in pick_logits]
+        return [pick_peaks(x, branches, cfg.alpha_at(level), cfg.nms_radius) for x in pick_logits]
 
     @torch.no_grad()
     def _propose(self, frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor, level: int,
@@ -300,19 +309,28 @@ class TreeSearch:
             picks += sets
             pick_logits.append(logits)
             if self.config.order_branch:
-                keep = place_allowed(states[part], goals[rows], rule="ordered")
+                keep = self._ordered_places(states[part], goals[rows])
                 ordered += list(restricted(maps[:, 0], keep))
             else:
                 ordered += [None] * len(sets)
         return picks, places, torch.cat(pick_logits), ordered
+
+    def _ordered_places(self, states: torch.Tensor, goals: torch.Tensor) -> torch.Tensor:
+        """The ``ordered`` places of ``states`` (B, H, W), with the GCTN's goal mask's margin and centring
+        (the module's defaults for an unmasked GCTN)."""
+        mask = mask_of(self.gctn)
+        if mask is None:
+            return place_allowed(states, goals, rule="ordered")
+        return mask.allowed_places(states, goals, rule="ordered")
 
     def _proposals(self, picks: np.ndarray, place_logits: torch.Tensor, level: int,
                    ordered: torch.Tensor | None = None) -> Proposals:  # fmt: skip
         cfg = self.config
         period = place_logits.shape[1] * 360.0 / self.n_rotations  # degrees the channels cover
         props = node_proposals(
-            place_logits, picks, cfg.k_at(level), rule=cfg.proposals, alpha=cfg.alpha, top_n=cfg.top_n,
-            seed=cfg.seed, radius=cfg.nms_radius, rotation_tolerance=cfg.nms_rotation, period=period,
+            place_logits, picks, cfg.k_at(level), rule=cfg.proposals, alpha=cfg.alpha_at(level),
+            top_n=cfg.top_n, seed=cfg.seed, radius=cfg.nms_radius, rotation_tolerance=cfg.nms_rotation,
+            period=period,
         )  # fmt: skip
         if ordered is None:
             return props

@@ -7,6 +7,7 @@ from tvf.policies.registry import (
     PLANNER_METHODS,
     Method,
     PolicySpec,
+    centred_share_of,
     forget_cached_policies,
     get_method,
     goal_mask_of,
@@ -20,6 +21,7 @@ from tvf.policies.registry import (
 
 __all__ = [
     "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
-    "Policy", "PolicySpec", "TvfPolicy", "act_all", "forget_cached_policies", "get_method", "goal_mask_of",
-    "label", "make_policy", "mask_places_of", "planner_of", "policy_for", "refine_yaw_of",
+    "Policy", "PolicySpec", "TvfPolicy", "act_all", "centred_share_of", "forget_cached_policies",
+    "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of", "planner_of", "policy_for",
+    "refine_yaw_of",
 ]  # fmt: skip

@@ -13,7 +13,7 @@ import torch
 from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
-from tvf.models.goal_mask import PLACE_RULES, goal_masked
+from tvf.models.goal_mask import CENTRED_SHARE, PLACE_RULES, goal_masked
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig, widest_node
 from tvf.policies.base import Policy
@@ -21,7 +21,7 @@ from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
-    "order_branch", "gamma",
+    "order_branch", "gamma", "root_alpha",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -66,14 +66,19 @@ class PolicySpec:
     """With the goal mask: the places it keeps (:data:`tvf.models.goal_mask.PLACE_RULES`; None: the
     method's, ``Method.mask_places``)."""
     refine_yaw: bool | None = None
-    """Correct the place's turn, by at most two 10° bins, to the block yaws read from the current and the
-    goal height maps (:mod:`tvf.planning.yaw`; None: the method's, ``Method.refine_yaw``; False: the
+    """Set the place's turn to the block yaws read from the current and the goal height maps where both
+    readings are clear (:mod:`tvf.planning.yaw`; None: the method's, ``Method.refine_yaw``; False: the
     paper's)."""
 
     order_branch: bool | None = None
     """TVF with the goal mask: one proposal per node is the best place of the mask's ordered rule."""
     gamma: float | None = None
     """TVF: the discount per level of the search's score (None: the method's, the paper's 0.99)."""
+    root_alpha: float | None = None
+    """TVF: ``alpha`` for the root's proposals only (None: the method's, ``alpha`` everywhere)."""
+    centred_share: float | None = None
+    """With the goal mask's ``centred`` or ``ordered`` places: the share of the best-filled footprint a
+    place's footprint must hold (None: the method's, ``Method.centred_share``)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -102,6 +107,9 @@ class Method:
     """Its GCTN's maps masked by the height difference to the goal (:mod:`tvf.models.goal_mask`)."""
     mask_places: str = "gap"
     """The places its goal mask keeps (:data:`tvf.models.goal_mask.PLACE_RULES`)."""
+    centred_share: float = CENTRED_SHARE
+    """Its goal mask's centring (``centred`` and ``ordered`` places;
+    :func:`tvf.models.goal_mask.centred_places`)."""
     refine_yaw: bool = False
     """Its place turns corrected to the block yaws read from the height maps (:mod:`tvf.planning.yaw`)."""
 
@@ -118,7 +126,8 @@ def _load_gctn(spec: PolicySpec):
     """The spec's GCTN, goal-masked or not and symmetrised over its turns (the method's unless the spec
     sets them)."""
     turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
-    gctn = goal_masked(load_trained(spec.gctn, "gctn"), goal_mask_of(spec), mask_places_of(spec))
+    gctn = load_trained(spec.gctn, "gctn")
+    gctn = goal_masked(gctn, goal_mask_of(spec), mask_places_of(spec), centred_share_of(spec))
     return symmetrized(gctn, turns)
 
 
@@ -130,6 +139,11 @@ def goal_mask_of(spec: PolicySpec) -> bool:
 def mask_places_of(spec: PolicySpec) -> str:
     """The place rule of ``spec``'s goal mask: the spec's choice, else its method's default."""
     return spec.mask_places if spec.mask_places is not None else get_method(spec.method).mask_places
+
+
+def centred_share_of(spec: PolicySpec) -> float:
+    """The centring of ``spec``'s goal mask: the spec's choice, else its method's default."""
+    return spec.centred_share if spec.centred_share is not None else get_method(spec.method).centred_share
 
 
 def refine_yaw_of(spec: PolicySpec) -> bool:
@@ -171,14 +185,16 @@ METHODS: dict[str, Method] = {
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
         # masked and refined together (either alone did not gain; docs/results.md, "TVF-L with the mask
-        # and the refinement together"); the paper's rule is --proposals kmeans --pick-branches 1
-        # --turns 1 --goal-mask False --refine-yaw False
+        # and the refinement together"); its first actions from a lower threshold (three distinct root
+        # proposals in 96.7 % of decisions; docs/results.md, "Distinct first actions"); the paper's rule
+        # is --proposals kmeans --pick-branches 1 --turns 1 --goal-mask False --refine-yaw False
+        # --root-alpha 0.01
         Method(
             "tvf-large",
             "TVF-L",
             _tvf,
             ("gctn", "vf"),
-            PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1),
+            PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1, root_alpha=0.001),
             turns=8,
             goal_mask=True,
             refine_yaw=True,
@@ -210,6 +226,8 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
     if "k" in changes and "pick_branches" not in changes:  # a smaller K shares fewer picks
         widest = widest_node(changes["k"], changes.get("root_k", method.planner.root_k))
         changes["pick_branches"] = max(1, min(method.planner.pick_branches, widest))
+    if "alpha" in changes and "root_alpha" not in changes:  # an alpha of one's own holds at the root too
+        changes["root_alpha"] = None
     try:
         return replace(method.planner, **changes)
     except ValueError as exc:
@@ -247,7 +265,18 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
         if not goal_mask_of(spec):
             raise TvfError(f"--mask-places narrows the goal mask, which {spec.method} does not use here; "
                            "add --goal-mask True")  # fmt: skip
+    if spec.centred_share is not None:
+        _check_centred_share(spec)
     return method.build(spec, env, pick_device(spec.device))
+
+
+def _check_centred_share(spec: PolicySpec) -> None:
+    """A ``--centred-share`` that is a fraction and has centred places to act on, else a one-line error."""
+    if not 0 < spec.centred_share <= 1:
+        raise TvfError(f"--centred-share must be a fraction in (0, 1], got {spec.centred_share}")
+    if not goal_mask_of(spec) or mask_places_of(spec) not in ("centred", "ordered"):
+        raise TvfError("--centred-share sets how the goal mask centres its places; add --goal-mask True "
+                       "--mask-places ordered (or centred)")  # fmt: skip
 
 
 def policy_for(spec: PolicySpec, env=None) -> Policy:
