@@ -17,7 +17,7 @@ from tvf.errors import StaleError
 from tvf.evaluate.runner import EpisodeResult, check_envs_per_worker, policy_episode, policy_episodes
 from tvf.io import append_jsonl, as_disk_full, atomic_write_bytes, atomic_write_json, read_json, read_jsonl
 from tvf.models.checkpoint import trained_checkpoint
-from tvf.models.goal_mask import CENTRED_SHARE
+from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES
 from tvf.parallel import check_backend, run_jobs
 from tvf.policies import (
     PolicySpec,
@@ -117,7 +117,7 @@ def evaluate(
     places = mask_places_of(spec)  # likewise None for the mask's first rule, gap, and for no mask
     meta["mask_places"] = places if goal_mask_of(spec) and places != "gap" else None
     share = centred_share_of(spec)  # likewise None for the first centring, and where nothing is centred
-    centring = meta["mask_places"] in ("centred", "ordered") and share != CENTRED_SHARE
+    centring = meta["mask_places"] in CENTRING_RULES and share != CENTRED_SHARE
     meta["centred_share"] = share if centring else None
     meta["refine_yaw"] = refine_yaw_of(spec) or None  # resolved like the mask; None: the bins' own turns
     # resolved too (None: alpha at the root as everywhere), so a folder from before TVF-L's lower root

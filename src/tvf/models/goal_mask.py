@@ -64,6 +64,9 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
 (:func:`finishing_places`); ``ordered`` both, centred first."""
 
+CENTRING_RULES = ("centred", "ordered")
+"""The place rules that centre their places (:func:`centred_places`, ``--centred-share``)."""
+
 
 def check_centred_share(share: float) -> float:
     """``share`` if it is a fraction in (0, 1], else a one-line error."""
@@ -90,7 +93,7 @@ def place_allowed(
     ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions (``share``:
     :func:`centred_places`), to the places that need no block under them first, or both."""
     allowed = _allowed(_height_gap(goal, current), margin)
-    if check_place_rule(rule) in ("centred", "ordered"):
+    if check_place_rule(rule) in CENTRING_RULES:
         allowed = centred_places(allowed, share)
     if rule in ("bottom-up", "ordered"):
         allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)

@@ -13,7 +13,7 @@ import torch
 from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
-from tvf.models.goal_mask import CENTRED_SHARE, PLACE_RULES, goal_masked
+from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig, widest_node
 from tvf.policies.base import Policy
@@ -274,7 +274,7 @@ def _check_centred_share(spec: PolicySpec) -> None:
     """A ``--centred-share`` that is a fraction and has centred places to act on, else a one-line error."""
     if not 0 < spec.centred_share <= 1:
         raise TvfError(f"--centred-share must be a fraction in (0, 1], got {spec.centred_share}")
-    if not goal_mask_of(spec) or mask_places_of(spec) not in ("centred", "ordered"):
+    if not goal_mask_of(spec) or mask_places_of(spec) not in CENTRING_RULES:
         raise TvfError("--centred-share sets how the goal mask centres its places; add --goal-mask True "
                        "--mask-places ordered (or centred)")  # fmt: skip
 
