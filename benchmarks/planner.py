@@ -10,7 +10,10 @@ e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching ove
 ``+turnsT`` averages the GCTN over T quarter turns of the scene, ``--turns``, and ``+tdepthD`` does so at
 the first D levels only, ``--turns-depth``; ``+rootR``, ``+kK`` and ``+depthD`` set ``--root-k``, ``--k`` and
 ``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree; ``+mask``
-adds ``--goal-mask`` and ``+alphaA`` sets ``--alpha``, e.g. ``+alpha0.001``).
+adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+centre`` adds
+``--centre-picks`` and ``+alphaA`` sets ``--alpha``, e.g. ``+alpha0.001``; the shipped TVF-L:
+``nms+picks3+turns8+tdepth1+mask+rootalpha0.001``, with the block-centred picks and layered places:
+``...+placeslayered+centre``).
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
@@ -27,6 +30,7 @@ from common import best_seconds
 from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import goal_masked
 from tvf.models.images import to_rgbh
+from tvf.models.pick_centre import centring_picks
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import symmetrized
 from tvf.models.vf import VisualForesight
@@ -61,13 +65,14 @@ def first_observation(task: str, seed: int = 1):
     return to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
 
 
-def rule_config(rule: str) -> tuple[dict, int, bool]:
-    """PlannerConfig fields, GCTN turns and goal mask of a rule name: kmeans | nms | nms+picksP, each
-    optionally +turnsT (the GCTN averaged over T quarter turns, tvf.models.symmetry), +tdepthD, +rootR,
-    +kK, +depthD, +mask (tvf.models.goal_mask), +alphaA (``--alpha``), +rootalphaA (``--root-alpha``)."""
+def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
+    """PlannerConfig fields, GCTN turns, goal mask place rule (None: no mask) and centred picks of a rule
+    name: kmeans | nms | nms+picksP, each optionally +turnsT (the GCTN averaged over T quarter turns,
+    tvf.models.symmetry), +tdepthD, +rootR, +kK, +depthD, +mask (tvf.models.goal_mask), +placesRULE,
+    +centre (tvf.models.pick_centre), +alphaA (``--alpha``), +rootalphaA (``--root-alpha``)."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
-    turns, mask = 1, False
+    turns, places, centre = 1, None, False
     for option in options:
         if option.startswith("picks"):
             fields["pick_branches"] = int(option[len("picks") :])
@@ -76,7 +81,11 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
         elif option.startswith("tdepth"):
             fields["turns_depth"] = int(option[len("tdepth") :])
         elif option == "mask":
-            mask = True
+            places = places or "gap"
+        elif option.startswith("places"):
+            places = option[len("places") :]
+        elif option == "centre":
+            centre = True
         elif option.startswith("alpha"):
             fields["alpha"] = float(option[len("alpha") :])
         elif option.startswith("rootalpha"):
@@ -90,9 +99,9 @@ def rule_config(rule: str) -> tuple[dict, int, bool]:
         else:
             raise SystemExit(
                 f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK, "
-                "+depthD, +mask, +alphaA or +rootalphaA"
+                "+depthD, +mask, +placesRULE, +centre, +alphaA or +rootalphaA"
             )
-    return fields, turns, mask
+    return fields, turns, places, centre
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str]) -> dict:
@@ -114,8 +123,9 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         row["speedup"] = row["node_by_node_s"] / row["batched_s"]
         out[name] = row
     for rule in rules:
-        fields, turns, mask = rule_config(rule)
-        model = symmetrized(goal_masked(gctn, mask), turns)
+        fields, turns, places, centre = rule_config(rule)
+        masked = goal_masked(gctn, places is not None, places or "gap")
+        model = symmetrized(centring_picks(masked, centre), turns)
         search = TreeSearch(model, vf, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
         seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
         out[f"tvf-large/{rule}"] = {"batched_s": seconds, "counts": search.search(current, goal).counts}

@@ -82,7 +82,7 @@ def load_planner(
     method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
     keep_images: bool = False, turns: int | None = None, goal_mask: bool | None = None,
     mask_places: str | None = None, refine_yaw: bool | None = None, centred_share: float | None = None,
-    **planner,
+    centre_picks: bool | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
@@ -90,10 +90,12 @@ def load_planner(
     ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the
     GCTN over quarter turns of the scene (default: the method's); ``goal_mask`` True masks the GCTN's maps
     by the height difference to the goal (:mod:`tvf.models.goal_mask`; default: the method's),
-    ``mask_places`` (gap, centred, bottom-up, ordered) narrows its places (default: the method's) and
+    ``mask_places`` (gap, centred, bottom-up, ordered, layered) narrows its places (default: the method's) and
     ``centred_share`` sets how near a region's middle the centred ones lie (default 0.9); ``refine_yaw``
     True sets the place's turn to the block yaws read from the two height maps (:mod:`tvf.planning.yaw`;
-    default: the method's). Errors name the bad argument or file in one line."""
+    default: the method's); ``centre_picks`` True moves the GCTN's picks to the centres of the block
+    faces under them (:mod:`tvf.models.pick_centre`; default: the method's). Errors name the bad argument
+    or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
@@ -110,6 +112,7 @@ def load_planner(
         mask_places=mask_places,
         refine_yaw=refine_yaw,
         centred_share=centred_share,
+        centre_picks=centre_picks,
         **planner,
     )
     policy = make_policy(spec)

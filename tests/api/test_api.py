@@ -60,6 +60,8 @@ def test_every_planner_option_of_the_cli_reaches_the_search():
     assert {name: getattr(config, name) for name in options} == options
     ordered = tvf.load_planner("tvf-large", mask_places="ordered", centred_share=0.8)._policy.search.gctn
     assert mask_of(ordered).places == "ordered" and mask_of(ordered).share == 0.8
+    centring = tvf.load_planner("gctn", centre_picks=True, turns=1)._policy.model
+    assert type(centring).__name__ == "CentredPickGCTN"
 
 
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):

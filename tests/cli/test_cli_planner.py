@@ -218,6 +218,18 @@ def test_eval_records_a_refined_yaw_and_resumes_only_with_it(capsys, tmp_path, s
     assert code == 2 and "other refine_yaw" in err  # the paper's bins' turns are another evaluation
 
 
+def test_eval_records_centred_picks_and_resumes_only_with_them(capsys, tmp_path, smoke_weights):
+    args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1",
+            "--out", str(tmp_path / "e"))  # fmt: skip
+    chosen = ("--centre-picks", "True", "--mask-places", "layered")
+    code, _, err = run(capsys, "eval", "--method", "gctn", *chosen, *args)
+    assert code == 0, err
+    recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
+    assert recorded["centre_picks"] is True and recorded["mask_places"] == "layered"
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--mask-places", "layered", *args)
+    assert code == 2 and "other centre_picks" in err, err  # the GCTN's own pick pixels: another evaluation
+
+
 def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_path, smoke_weights):
     weights = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--vf", str(smoke_weights / "vf-lite.pt"))
     roots = {}
@@ -270,6 +282,7 @@ def test_eval_records_a_centred_share_and_root_alpha_and_resumes_only_with_them(
     assert code == 0, err
     recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
     assert recorded["centred_share"] == 0.75 and recorded["root_alpha"] == 0.001
+    assert recorded["tie_band"] == 0.002  # TVF-S's resolved default, so an older folder is not resumed
     code, _, err = run(capsys, "eval", "--method", "tvf-small", "--mask-places", "ordered", *args)
     assert code == 2 and "other centred_share, root_alpha" in err, err
     code, _, err = run(capsys, "eval", "--method", "tvf-small", "--centred-share", "0.75", *args)

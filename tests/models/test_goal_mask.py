@@ -11,7 +11,9 @@ from tvf.models.goal_mask import (
     MASKED_LOGIT,
     GoalMaskedGCTN,
     centred_places,
+    fitting_places,
     goal_masked,
+    lowest_places,
     mask_of,
     pick_allowed,
     place_allowed,
@@ -175,3 +177,51 @@ def test_the_mask_under_a_symmetrising_wrapper_is_found_with_its_settings() -> N
     assert torch.equal(
         masked.allowed_places(ground_floor, goal, rule="gap"), place_allowed(ground_floor, goal)
     )
+
+
+# stack-pallet's shape: four cells 16 px (5 cm) apart, two layers
+CELLS = [(64, 64), (64, 80), (80, 64), (80, 80)]
+PALLET = [(*cell, layer) for layer in (0, 1) for cell in CELLS]
+
+
+def test_layered_places_fill_the_lowest_layer_before_a_column_rises_on_it() -> None:
+    goal, one_block = _stacked(PALLET), _stacked(PALLET[:1])
+    ordered = place_allowed(one_block, goal, rule="ordered")[0]
+    layered = place_allowed(one_block, goal, rule="layered")[0]
+    assert ordered[CELLS[0]] and not any(ordered[cell] for cell in CELLS[1:])  # a column on the first
+    assert not layered[CELLS[0]] and all(layered[cell] for cell in CELLS[1:])  # the other three cells
+    assert (layered <= place_allowed(one_block, goal)[0]).all()
+    ground_floor = _stacked(PALLET[:4])  # the first layer done: the second, on every cell
+    assert all(place_allowed(ground_floor, goal, rule="layered")[0][cell] for cell in CELLS)
+    building, columns = _stacked(BUILDING), _stacked(BUILDING[:2])  # the bridge still waits for its columns
+    layered = place_allowed(columns, building, rule="layered")[0]
+    assert layered[LEFT] and layered[RIGHT] and not layered[BRIDGE]
+    assert place_allowed(_stacked(BUILDING[:4]), building, rule="layered")[0][BRIDGE]
+
+
+def test_lowest_places_keep_where_a_block_lands_lowest() -> None:
+    current = _stacked([(40, 40, 0), (40, 40, 1), (100, 100, 0)])
+    allowed = torch.zeros(1, 160, 160, dtype=torch.bool)
+    for cell in ((40, 40), (100, 100), (130, 30)):
+        allowed[(0, *cell)] = True
+    lowest = lowest_places(current, allowed)[0]
+    assert lowest[130, 30] and not lowest[40, 40] and not lowest[100, 100]
+    allowed[0, 130, 30] = False  # the table is gone: the one-block column is the lowest left
+    lowest = lowest_places(current, allowed)[0]
+    assert lowest[100, 100] and not lowest[40, 40]
+
+
+def test_layered_places_skip_a_sliver_a_misplaced_block_left_and_centre_turned_cells() -> None:
+    goal = _stacked([(80, 60, 0), (80, 76, 0), (80, 76, 1)])  # a step: one block, then two
+    shifted = _stacked([(80, 62, 0), (80, 76, 0)])  # the first block 2 px off: a sliver of its cell open
+    assert fitting_places(shifted, goal)[0][80, 76] and not fitting_places(shifted, goal)[0][80, 55]
+    layered = place_allowed(shifted, goal, rule="layered")[0]
+    assert layered[80, 76] and not layered[:, :70].any()  # onto the column, not onto the sliver
+    color, height = draw_blocks([])
+    rows, cols = torch.meshgrid(torch.arange(160.0), torch.arange(160.0), indexing="ij")
+    turned = ((rows - 80) * 0.7071 - (cols - 80) * 0.7071).abs().le(6.4)
+    turned &= ((rows - 80) * 0.7071 + (cols - 80) * 0.7071).abs().le(6.4)  # a cell turned by 45 degrees
+    height[turned] = 0.04
+    middles = place_allowed(to_rgbh(*draw_blocks([])), to_rgbh(color, height), rule="layered")[0]
+    rows, cols = torch.nonzero(middles, as_tuple=True)
+    assert middles[80, 80] and (rows - 80).abs().max() <= 1 and (cols - 80).abs().max() <= 1

@@ -46,6 +46,9 @@ class ToyGctn:
     def rotation_bins(self, channels):
         return torch.as_tensor(channels)
 
+    def pick_pixels(self, states, picks):
+        return picks
+
     def pick_logits(self, states, goal):
         logits = torch.zeros(states.shape[0], SIZE, SIZE)
         logits[:, 3, 4] = 1.0
@@ -712,3 +715,25 @@ def test_the_order_branch_proposes_where_one_block_finishes_the_goal_and_the_sea
 
     assert roots(False) == [(80, 120), (80, 100)]
     assert roots(True) == [(80, 120), (80, 80)]  # the finishing cell, with the GCTN's best there
+
+
+class CornerPicksGctn(MapToyGctn):
+    """Picks ranked at two opposite corners of the block at (30, 30) (17 px apart), then one at (90, 100)."""
+
+    def pick_logits(self, states, goal):
+        logits = torch.full((states.shape[0], 160, 160), -50.0)
+        logits[:, 24, 24], logits[:, 36, 36], logits[:, 94, 104] = 1.0, 0.9, 0.8
+        return logits
+
+
+def test_centred_picks_reach_the_search_and_two_picks_on_one_block_become_one():
+    from tvf.models.pick_centre import CentredPickGCTN
+
+    current, goal = _heights({(30, 30): 0.04, (90, 100): 0.04}), _heights({(80, 80): 0.04})
+    logits = torch.full((ROTATIONS, 160, 160), -50.0)
+    logits[0, 80, 80] = 0.0
+    config = PlannerConfig(k=3, depth=1, proposals="nms", pick_branches=3)
+    plain = TreeSearch(CornerPicksGctn(logits), StillVf(), config).search(current, goal)
+    assert [tuple(n.pick.tolist()) for n in plain.nodes] == [(24, 24), (36, 36), (94, 104)]
+    centred = TreeSearch(CentredPickGCTN(CornerPicksGctn(logits)), StillVf(), config).search(current, goal)
+    assert [tuple(n.pick.tolist()) for n in centred.nodes] == [(30, 30), (90, 100)]

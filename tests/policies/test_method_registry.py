@@ -38,6 +38,8 @@ def test_planner_presets_and_overrides():
     own = planner_of(PolicySpec("tvf-large", alpha=0.5))  # an alpha of one's own holds at the root too
     assert own.alpha_at(1) == own.alpha_at(2) == 0.5
     assert large.turns_depth == 1 and small.turns_depth == 1
+    assert small.tie_band == 0.002 and large.tie_band == 0.0  # TVF-S keeps near ties for the GCTN
+    assert planner_of(PolicySpec("tvf-small", tie_band=0.0)).tie_band == 0.0  # the paper's rule
     assert [get_method(m).turns for m in ("gctn", "tvf-small", "tvf-large")] == [4, 4, 8]
     with pytest.raises(TvfError, match="unknown method 'tvf-huge'"):
         planner_of(PolicySpec("tvf-huge"))
@@ -114,6 +116,26 @@ def test_the_spec_centred_share_and_root_alpha_reach_the_mask_and_the_search():
         make_policy(PolicySpec("gctn", centred_share=0.75))  # gap keeps every place: nothing to centre
     with pytest.raises(TvfError, match=r"drop --root-alpha"):
         make_policy(PolicySpec("gctn", root_alpha=0.001))
+
+
+def test_the_spec_centre_picks_wrap_the_gctn_under_its_symmetrisation_and_need_a_gctn():
+    from tvf.models.pick_centre import CentredPickGCTN
+    from tvf.models.symmetry import SymmetrizedGCTN
+
+    def centring(gctn) -> bool:
+        while hasattr(gctn, "gctn"):
+            if isinstance(gctn, CentredPickGCTN):
+                return True
+            gctn = gctn.gctn
+        return False
+
+    assert centring(make_policy(PolicySpec("gctn", centre_picks=True)).model)
+    layered = PolicySpec("tvf-large", centre_picks=True, mask_places="layered")
+    assert centring(make_policy(layered).search.gctn)
+    assert not centring(make_policy(PolicySpec("gctn", centre_picks=False)).model)
+    assert isinstance(make_policy(PolicySpec("tvf-small", centre_picks=True)).search.gctn, SymmetrizedGCTN)
+    with pytest.raises(TvfError, match="oracle has no GCTN picks to centre; --centre-picks needs gctn"):
+        make_policy(PolicySpec("oracle", centre_picks=True))
 
 
 def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():

@@ -58,15 +58,20 @@ class PlannerFlags:
     mask_places: str | None = None
     """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
-    ordered (centred, then bottom-up); default: the method's (docs/planner.md)."""
+    ordered (centred, then bottom-up) | layered (centred, on the lowest layer still to fill, then
+    bottom-up); default: the method's (docs/planner.md)."""
     centred_share: float | None = None
-    """With --mask-places centred or ordered: a place's block footprint must hold this share of the
+    """With --mask-places centred, ordered or layered: a place's block footprint must hold this share of the
     allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
     lower keeps more of each region; docs/planner.md)."""
     refine_yaw: bool | None = None
     """GCTN and TVF: True sets the place's turn to the yaws of the picked block and of the goal's block at
     the place, read from the two height maps, where both readings are clear (no training;
     docs/planner.md); False: the GCTN's rotation bin as it is (the paper's); default: the method's."""
+    centre_picks: bool | None = None
+    """GCTN and TVF: True moves each pick the GCTN chooses to the centre of the block's top face under it,
+    read from the height map, so the place it predicts is where the block's middle goes (no training;
+    docs/planner.md); False: the GCTN's pick pixel (the paper's); default: the method's."""
 
     order_branch: bool | None = None
     """TVF with the goal mask: True makes one proposal of every node the best place of the mask's ordered
@@ -93,7 +98,7 @@ class PlannerFlags:
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
-            self.root_alpha, self.centred_share,
+            self.root_alpha, self.centred_share, self.centre_picks,
         )  # fmt: skip
 
 

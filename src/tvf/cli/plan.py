@@ -145,15 +145,18 @@ class PlanCmd:
     """True / False: mask the GCTN's maps by the height difference to the goal or not (False: the
     paper's; docs/planner.md); default: the method's."""
     mask_places: str | None = None
-    """With the goal mask: gap | centred | bottom-up | ordered, the places it keeps (docs/planner.md);
-    default: the method's."""
+    """With the goal mask: gap | centred | bottom-up | ordered | layered, the places it keeps
+    (docs/planner.md); default: the method's."""
     centred_share: float | None = None
-    """With --mask-places centred or ordered: how near a region's middle a place lies (a share of the
+    """With --mask-places centred, ordered or layered: how near a region's middle a place lies (a share of the
     best-filled footprint; default 0.9, docs/planner.md)."""
     refine_yaw: bool | None = None
     """True / False: set the place's turn to the block yaws read from the two height maps where both
     readings are clear, or keep the GCTN's bin (False: the paper's; docs/planner.md); default: the
     method's."""
+    centre_picks: bool | None = None
+    """True / False: move the GCTN's picks to the centres of the block faces under them, or keep its pick
+    pixels (False: the paper's; docs/planner.md); default: the method's."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
@@ -200,7 +203,7 @@ class PlanCmd:
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
                                keep_images=True, turns=self.turns, goal_mask=self.goal_mask,
                                mask_places=self.mask_places, centred_share=self.centred_share,
-                               refine_yaw=self.refine_yaw,
+                               refine_yaw=self.refine_yaw, centre_picks=self.centre_picks,
                                **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)

@@ -21,6 +21,7 @@ from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES
 from tvf.parallel import check_backend, run_jobs
 from tvf.policies import (
     PolicySpec,
+    centre_picks_of,
     centred_share_of,
     get_method,
     goal_mask_of,
@@ -120,9 +121,12 @@ def evaluate(
     centring = meta["mask_places"] in CENTRING_RULES and share != CENTRED_SHARE
     meta["centred_share"] = share if centring else None
     meta["refine_yaw"] = refine_yaw_of(spec) or None  # resolved like the mask; None: the bins' own turns
+    meta["centre_picks"] = centre_picks_of(spec) or None  # likewise; None: the GCTN's own pick pixels
     # resolved too (None: alpha at the root as everywhere), so a folder from before TVF-L's lower root
     # threshold is not resumed under it
     meta["root_alpha"] = planner_of(spec).root_alpha if get_method(spec.method).planner else None
+    # likewise TVF-S's tie band (None: 0, the paper's rule, as folders from before it recorded)
+    meta["tie_band"] = (planner_of(spec).tie_band or None) if get_method(spec.method).planner else None
     meta["weights"] = weights_hashes(spec)
     if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"

@@ -378,6 +378,11 @@ class GCTN(nn.Module):
         """The transport's goal feature maps; compute them once when one goal serves many states."""
         return self.transport.goal_features(goal)
 
+    def pick_pixels(self, current: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
+        """Where the picks (B, P, 2) chosen from :meth:`pick_logits` of ``current`` go: unchanged here
+        (a wrapper may move them, :mod:`tvf.models.pick_centre`)."""
+        return picks
+
     def rotation_bins(self, channels: torch.Tensor) -> torch.Tensor:
         """The rotation bin of a full turn (of ``preset.n_rotations``) of each place-map channel."""
         index = torch.as_tensor(channels, dtype=torch.int64, device=self.channel_bins.device)
@@ -473,9 +478,10 @@ def labelled_loss(
 
 
 def greedy_action(model, current: torch.Tensor, goal: torch.Tensor):
-    """:meth:`GCTN.act` for any model with ``pick_logits``, ``place_map`` and ``rotation_bins``."""
+    """:meth:`GCTN.act` for any model with ``pick_logits``, ``pick_pixels``, ``place_map`` and
+    ``rotation_bins``: the place map is read at the pick where ``pick_pixels`` moves the argmax."""
     pick_logits = model.pick_logits(current, goal)
-    pick = argmax_pixels(pick_logits)
+    pick = model.pick_pixels(current, argmax_pixels(pick_logits)[:, None])[:, 0]
     place_logits = model.place_map(current, goal, pick)
     place, channel = argmax_places(place_logits)
     return pick, place, model.rotation_bins(channel), {"pick": pick_logits, "place": place_logits}
@@ -491,8 +497,9 @@ def one_pick_place_map(model, current: torch.Tensor, goal: torch.Tensor | None, 
 
 class GctnWrapper(nn.Module):
     """Base of the models that offer a wrapped GCTN's calls with changed maps (:mod:`tvf.models.symmetry`,
-    :mod:`tvf.models.goal_mask`): the checkpoint kind, preset, config, rotation bins and goal features are
-    the wrapped GCTN's; ``place_map`` and ``act`` follow from the subclass's ``pick_logits`` and
+    :mod:`tvf.models.goal_mask`, :mod:`tvf.models.pick_centre`): the checkpoint kind, preset, config,
+    rotation bins, goal features and picks are the wrapped GCTN's, and so are the maps where a subclass
+    keeps them; ``place_map`` and ``act`` follow from the subclass's ``pick_logits`` and
     ``place_maps``."""
 
     checkpoint_kind = "gctn"
@@ -510,6 +517,16 @@ class GctnWrapper(nn.Module):
 
     def goal_features(self, goal: torch.Tensor) -> torch.Tensor:
         return self.gctn.goal_features(goal)
+
+    def pick_pixels(self, current: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
+        return self.gctn.pick_pixels(current, picks)
+
+    def pick_logits(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        return self.gctn.pick_logits(current, goal)
+
+    def place_maps(self, current: torch.Tensor, goal: torch.Tensor | None, picks: torch.Tensor,
+                   goal_features: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
+        return self.gctn.place_maps(current, goal, picks, goal_features)
 
     def place_map(
         self,

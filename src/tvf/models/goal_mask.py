@@ -58,13 +58,16 @@ def pick_allowed(current: torch.Tensor, goal: torch.Tensor, margin: float = MARG
     return _allowed(_height_gap(current, goal), margin)
 
 
-PLACE_RULES = ("gap", "centred", "bottom-up", "ordered")
+PLACE_RULES = ("gap", "centred", "bottom-up", "ordered", "layered")
 """Which places the mask keeps (``--mask-places``): ``gap`` every pixel where the goal stands half a block
 above the scene; ``centred`` only those whose block footprint lies (almost) wholly in such a region
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
-(:func:`finishing_places`); ``ordered`` both, centred first."""
+(:func:`finishing_places`); ``ordered`` both, centred first; ``layered`` of the places a block fits
+(:func:`fitting_places`) those where it lands lowest (:func:`lowest_places`: a layer is finished before
+a block goes on it, as the expert builds), the middles among them (:func:`centred_places`), and of those
+first the ones one block finishes."""
 
-CENTRING_RULES = ("centred", "ordered")
+CENTRING_RULES = ("centred", "ordered", "layered")
 """The place rules that centre their places (:func:`centred_places`, ``--centred-share``)."""
 
 
@@ -91,32 +94,69 @@ def place_allowed(
 ) -> torch.Tensor:
     """Where the goal stands more than ``margin`` above the scene: a block the scene still lacks (B, H, W);
     ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions (``share``:
-    :func:`centred_places`), to the places that need no block under them first, or both."""
+    :func:`centred_places`), to the places that need no block under them first, both, or (``layered``)
+    to the middles of the lowest layer still to fill and then the places that need no block under them."""
     allowed = _allowed(_height_gap(goal, current), margin)
-    if check_place_rule(rule) in CENTRING_RULES:
+    if check_place_rule(rule) == "layered":  # the lowest landing places first, then their middles
+        allowed = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
+        allowed = centred_places(allowed, share, lowest_places(current, allowed, margin), disc=True)
+    elif rule in CENTRING_RULES:
         allowed = centred_places(allowed, share)
-    if rule in ("bottom-up", "ordered"):
+    if rule in ("bottom-up", "ordered", "layered"):
         allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)
     return allowed
+
+
+def _resting_height(current: torch.Tensor) -> torch.Tensor:
+    """Normalised height (B, H, W) a block placed at each pixel lands on: the highest of its footprint."""
+    return F.max_pool2d(current[:, 3:4], FOOTPRINT_PX, stride=1, padding=FOOTPRINT_PX // 2)[:, 0]
 
 
 def finishing_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
     """Places where one block, landing on the highest point of its footprint, brings the scene up to the
     goal's height within ``margin`` (B, H, W): the tops of columns one block short, where a place needs no
     other block under it first. A block bridging two columns is not finishing until both stand."""
-    rest = F.max_pool2d(current[:, 3:4], FOOTPRINT_PX, stride=1, padding=FOOTPRINT_PX // 2)[:, 0]
-    return (goal[:, 3] - rest) * HEIGHT_STD <= BLOCK_SIZE + margin
+    return (goal[:, 3] - _resting_height(current)) * HEIGHT_STD <= BLOCK_SIZE + margin
 
 
-def centred_places(allowed: torch.Tensor, share: float = CENTRED_SHARE) -> torch.Tensor:
-    """Pixels of ``allowed`` (B, H, W) whose block footprint (a :data:`FOOTPRINT_PX` square) holds at least
-    ``share`` of the allowed pixels of the best-filled footprint in its state: the middles of the regions
-    to fill rather than their rims (a block placed at a rim half misses its cell)."""
+def fitting_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
+    """Places where a block, landing on the highest point of its footprint, tops out no more than
+    ``margin`` over the goal's height (B, H, W): not on a finished block beside a sliver of its cell that
+    a slightly misplaced block left uncovered."""
+    return (goal[:, 3] - _resting_height(current)) * HEIGHT_STD >= BLOCK_SIZE - margin
+
+
+def lowest_places(current: torch.Tensor, allowed: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
+    """The pixels of ``allowed`` (B, H, W) where a block lands within ``margin`` of the lowest landing
+    height among them: the lowest unfinished layer, so no column rises ahead of its neighbours."""
+    rest = _resting_height(current) * HEIGHT_STD
+    lowest = torch.where(allowed, rest, torch.full_like(rest, torch.inf)).flatten(1).min(dim=1).values
+    return allowed & (rest <= lowest.view(-1, 1, 1) + margin)
+
+
+def _disc(diameter: int = FOOTPRINT_PX) -> torch.Tensor:
+    """A (1, 1, D, D) kernel: the pixels of a disc of ``diameter`` pixels, summing to 1."""
+    offsets = torch.arange(diameter, dtype=torch.float32) - diameter // 2
+    inside = (offsets[:, None] ** 2 + offsets[None] ** 2 <= (diameter / 2) ** 2).float()
+    return (inside / inside.sum()).view(1, 1, diameter, diameter)
+
+
+def centred_places(
+    allowed: torch.Tensor, share: float = CENTRED_SHARE, among: torch.Tensor | None = None,
+    disc: bool = False,
+) -> torch.Tensor:  # fmt: skip
+    """Pixels of ``among`` (B, H, W; default ``allowed``) whose block footprint (a :data:`FOOTPRINT_PX`
+    square, or with ``disc`` the disc inscribed in it, the same at any yaw of the goal) holds at least
+    ``share`` of the ``allowed`` pixels of the best-filled footprint among them in its state: the middles
+    of the regions to fill rather than their rims (a block placed at a rim half misses its cell)."""
+    among = allowed if among is None else among
     pad = FOOTPRINT_PX // 2
-    fit = F.avg_pool2d(allowed[:, None].float(), FOOTPRINT_PX, stride=1, padding=pad, count_include_pad=True)
-    fit = fit[:, 0]
-    best = fit.flatten(1).max(dim=1).values.view(-1, 1, 1)
-    return allowed & (fit >= share * best)
+    if disc:
+        fit = F.conv2d(allowed[:, None].float(), _disc().to(allowed.device), padding=pad)[:, 0]
+    else:
+        fit = F.avg_pool2d(allowed[:, None].float(), FOOTPRINT_PX, stride=1, padding=pad)[:, 0]
+    best = torch.where(among, fit, torch.zeros_like(fit)).flatten(1).max(dim=1).values.view(-1, 1, 1)
+    return among & (fit >= share * best)
 
 
 def restricted(logits: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
@@ -142,7 +182,7 @@ class GoalMaskedGCTN(GctnWrapper):
         self.places = check_place_rule(places)
         """The place rule (:data:`PLACE_RULES`)."""
         self.share = check_centred_share(share)
-        """The ``centred`` and ``ordered`` rules' share (:func:`centred_places`)."""
+        """The centring rules' share (:data:`CENTRING_RULES`, :func:`centred_places`)."""
 
     def allowed_places(
         self, current: torch.Tensor, goal: torch.Tensor, rule: str | None = None

@@ -226,6 +226,18 @@ def _goal_rows(features: torch.Tensor, rows: slice | torch.Tensor) -> torch.Tens
     return features[:, rows] if features.dim() == 5 else features[rows]
 
 
+def _padded(sets: list[np.ndarray]) -> np.ndarray:
+    """Each state's picks (n_i, 2) stacked (N, max n_i, 2): states with fewer repeat their best one."""
+    width = max(len(s) for s in sets)
+    return np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
+
+
+def _distinct_rows(picks: np.ndarray) -> np.ndarray:
+    """``picks`` (n, 2) without the repeats of an earlier row (two picks moved to one block's centre)."""
+    _, first = np.unique(picks, axis=0, return_index=True)
+    return picks[np.sort(first)]
+
+
 @dataclass
 class _Level:
     """One level's frontier over all the roots of a search: the states (rows grouped by root, in root
@@ -301,8 +313,9 @@ class TreeSearch:
             rows = self._root_rows(roots, part)
             logits = gctn.pick_logits(states[part], goals[rows])
             sets = self._picks(logits, level)
-            width = max(len(s) for s in sets)  # states with fewer picks repeat their best one
-            padded = np.stack([np.concatenate([s, np.repeat(s[:1], width - len(s), axis=0)]) for s in sets])
+            moved = gctn.pick_pixels(states[part], torch.as_tensor(_padded(sets))).cpu().numpy()
+            sets = [_distinct_rows(m[: len(s)]) for m, s in zip(moved, sets, strict=True)]
+            padded = _padded(sets)
             features = _goal_rows(goal_features, rows)
             maps = gctn.place_maps(states[part], goals[rows], torch.as_tensor(padded), features)
             places += [m[: len(s)] for m, s in zip(maps, sets, strict=True)]

@@ -7,6 +7,7 @@ from tvf.policies.registry import (
     PLANNER_METHODS,
     Method,
     PolicySpec,
+    centre_picks_of,
     centred_share_of,
     forget_cached_policies,
     get_method,
@@ -21,7 +22,7 @@ from tvf.policies.registry import (
 
 __all__ = [
     "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
-    "Policy", "PolicySpec", "TvfPolicy", "act_all", "centred_share_of", "forget_cached_policies",
-    "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of", "planner_of", "policy_for",
-    "refine_yaw_of",
+    "Policy", "PolicySpec", "TvfPolicy", "act_all", "centre_picks_of", "centred_share_of",
+    "forget_cached_policies", "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of",
+    "planner_of", "policy_for", "refine_yaw_of",
 ]  # fmt: skip

@@ -14,6 +14,7 @@ from tvf.device import pick_device
 from tvf.errors import TvfError
 from tvf.models.checkpoint import load_trained
 from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
+from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig, widest_node
 from tvf.policies.base import Policy
@@ -79,6 +80,9 @@ class PolicySpec:
     centred_share: float | None = None
     """With the goal mask's ``centred`` or ``ordered`` places: the share of the best-filled footprint a
     place's footprint must hold (None: the method's, ``Method.centred_share``)."""
+    centre_picks: bool | None = None
+    """Move each pick the GCTN chooses to the centre of the block face under it, read from the height map
+    (:mod:`tvf.models.pick_centre`; None: the method's, ``Method.centre_picks``; False: the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -112,6 +116,8 @@ class Method:
     :func:`tvf.models.goal_mask.centred_places`)."""
     refine_yaw: bool = False
     """Its place turns corrected to the block yaws read from the height maps (:mod:`tvf.planning.yaw`)."""
+    centre_picks: bool = False
+    """Its GCTN's picks moved to the centres of the block faces under them (:mod:`tvf.models.pick_centre`)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -123,12 +129,12 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
 
 
 def _load_gctn(spec: PolicySpec):
-    """The spec's GCTN, goal-masked or not and symmetrised over its turns (the method's unless the spec
-    sets them)."""
+    """The spec's GCTN, goal-masked or not, its picks centred or not, and symmetrised over its turns (the
+    method's unless the spec sets them)."""
     turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
     gctn = load_trained(spec.gctn, "gctn")
     gctn = goal_masked(gctn, goal_mask_of(spec), mask_places_of(spec), centred_share_of(spec))
-    return symmetrized(gctn, turns)
+    return symmetrized(centring_picks(gctn, centre_picks_of(spec)), turns)
 
 
 def goal_mask_of(spec: PolicySpec) -> bool:
@@ -152,6 +158,11 @@ def refine_yaw_of(spec: PolicySpec) -> bool:
     return spec.refine_yaw if spec.refine_yaw is not None else get_method(spec.method).refine_yaw
 
 
+def centre_picks_of(spec: PolicySpec) -> bool:
+    """Whether ``spec``'s picks move to their blocks' face centres: the spec's choice, else its method's."""
+    return spec.centre_picks if spec.centre_picks is not None else get_method(spec.method).centre_picks
+
+
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
     return GctnPolicy(_load_gctn(spec), device, refine_yaw_of(spec))
 
@@ -173,12 +184,15 @@ METHODS: dict[str, Method] = {
         # GCTN and TVF-S: their place turns corrected from the height maps (docs/results.md, "Turns read
         # from the height maps"); the paper's is --refine-yaw False
         Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, goal_mask=True, refine_yaw=True),
+        # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
+        # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
+        # paper's rule is --tie-band 0
         Method(
             "tvf-small",
             "TVF-S",
             _tvf,
             ("gctn", "vf"),
-            PlannerConfig(k=2, depth=1, turns_depth=1),
+            PlannerConfig(k=2, depth=1, turns_depth=1, tie_band=0.002),
             turns=4,
             goal_mask=True,
             refine_yaw=True,
@@ -258,6 +272,9 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
     if spec.refine_yaw and "gctn" not in method.models:
         raise TvfError(f"{spec.method} does not turn blocks by rotation bins; --refine-yaw needs gctn, "
                        "tvf-small or tvf-large")  # fmt: skip
+    if spec.centre_picks and "gctn" not in method.models:
+        raise TvfError(f"{spec.method} has no GCTN picks to centre; --centre-picks needs gctn, tvf-small or "
+                       "tvf-large")  # fmt: skip
     if spec.mask_places is not None:
         if spec.mask_places not in PLACE_RULES:
             rules = ", ".join(PLACE_RULES)
@@ -276,7 +293,7 @@ def _check_centred_share(spec: PolicySpec) -> None:
         raise TvfError(f"--centred-share must be a fraction in (0, 1], got {spec.centred_share}")
     if not goal_mask_of(spec) or mask_places_of(spec) not in CENTRING_RULES:
         raise TvfError("--centred-share sets how the goal mask centres its places; add --goal-mask True "
-                       "--mask-places ordered (or centred)")  # fmt: skip
+                       "--mask-places ordered (or centred, layered)")  # fmt: skip
 
 
 def policy_for(spec: PolicySpec, env=None) -> Policy:
