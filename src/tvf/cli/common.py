@@ -46,8 +46,9 @@ class PlannerFlags:
     the plain GCTN (1 = the root's proposals only)."""
     tie_band: float | None = None
     """TVF: root actions whose best imagined outcome scores within TIE_BAND of the best are ties, and the
-    GCTN's order decides (default 0: the best score wins, the paper's). 0.001 is about a fifteenth of a
-    misplaced block (docs/planner.md; measured in docs/real-robot.md)."""
+    GCTN's order decides (default: the method's, tvf-small 0.002, tvf-large 0; 0: the best score wins,
+    the paper's). 0.001 is about a fifteenth of a misplaced block (docs/planner.md; measured in
+    docs/real-robot.md)."""
     root_k: int | None = None
     """TVF: proposals of the real state, the first actions the search tries (default: K, as every node,
     the paper's). A wide root over a narrow tree, e.g. --root-k 6 --k 2, costs about as much as K 3."""

@@ -159,7 +159,8 @@ class PlanCmd:
     pixels (False: the paper's; docs/planner.md); default: the method's."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
-    (default 0, the paper's; 0.001 is about a fifteenth of a misplaced block; docs/planner.md)."""
+    (default: the method's, tvf-small 0.002, tvf-large 0; 0: the paper's; 0.001 is about a fifteenth of
+    a misplaced block; docs/planner.md)."""
     hole_fill: Literal["auto", "nearest", "background"] = "auto"
     """auto | nearest | background: how pixels no camera measured are filled. nearest: the nearest
     measured pixel's values; background: the lowest surface on the hole's rim (what a camera's occlusion
