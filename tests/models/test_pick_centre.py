@@ -9,8 +9,8 @@ from model_scenes import draw_blocks
 
 from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import GoalMaskedGCTN
-from tvf.models.images import to_rgbh
-from tvf.models.pick_centre import CentredPickGCTN, centring_picks, face_centres, heights_of
+from tvf.models.images import heights_of, to_rgbh
+from tvf.models.pick_centre import CentredPickGCTN, centring_picks, face_centres
 from tvf.models.presets import SMOKE
 from tvf.models.symmetry import SymmetrizedGCTN
 

@@ -47,8 +47,12 @@ def from_rgbh(rgbh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     No clamping; see :func:`clamp_rgbh`.
     """
     color = (rgbh[:, :3] * COLOR_STD + COLOR_MEAN) * 255.0
-    height = rgbh[:, 3] * HEIGHT_STD + HEIGHT_MEAN
-    return color.permute(0, 2, 3, 1).contiguous(), height.contiguous()
+    return color.permute(0, 2, 3, 1).contiguous(), heights_of(rgbh).contiguous()
+
+
+def heights_of(rgbh: torch.Tensor) -> torch.Tensor:
+    """Metres (B, H, W) of normalised RGB-H images (B, 4, H, W)."""
+    return rgbh[:, 3] * HEIGHT_STD + HEIGHT_MEAN
 
 
 def _normalised_bounds(device: torch.device | None = None) -> tuple[torch.Tensor, torch.Tensor]:

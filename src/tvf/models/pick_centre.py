@@ -19,7 +19,7 @@ import torch.nn.functional as F
 
 from tvf.geometry import PIXEL_SIZE
 from tvf.models.gctn import GctnWrapper
-from tvf.models.images import HEIGHT_MEAN, HEIGHT_STD
+from tvf.models.images import heights_of
 from tvf.tasks import BLOCK_SIZE
 
 FACE_TOLERANCE = 0.005
@@ -86,11 +86,6 @@ def face_centres(height: torch.Tensor, picks: torch.Tensor, window: int = FACE_W
     size = torch.tensor(height.shape[-2:], device=height.device)
     moved = picks.reshape(-1, 2) + shift
     return torch.minimum(moved.clamp(min=0), size - 1).reshape(picks.shape)
-
-
-def heights_of(images: torch.Tensor) -> torch.Tensor:
-    """Metres (B, H, W) of normalised RGB-H images (B, 4, H, W)."""
-    return images[:, 3] * HEIGHT_STD + HEIGHT_MEAN
 
 
 class CentredPickGCTN(GctnWrapper):
