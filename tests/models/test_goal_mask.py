@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import pytest
 import torch
+import torch.nn.functional as F
 from model_scenes import BLOCK, draw_blocks
 
 from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import (
     MASKED_LOGIT,
     GoalMaskedGCTN,
+    _disc,
+    _disc_max,
     centred_places,
     fitting_places,
     goal_masked,
@@ -17,6 +20,8 @@ from tvf.models.goal_mask import (
     mask_of,
     pick_allowed,
     place_allowed,
+    seams_closed,
+    unstraddled_places,
 )
 from tvf.models.images import to_rgbh
 from tvf.models.presets import SMOKE
@@ -225,3 +230,39 @@ def test_layered_places_skip_a_sliver_a_misplaced_block_left_and_centre_turned_c
     middles = place_allowed(to_rgbh(*draw_blocks([])), to_rgbh(color, height), rule="layered")[0]
     rows, cols = torch.nonzero(middles, as_tuple=True)
     assert middles[80, 80] and (rows - 80).abs().max() <= 1 and (cols - 80).abs().max() <= 1
+
+
+def test_the_goal_seams_close_and_a_disc_maximum_matches_the_disc() -> None:
+    goal = _stacked([(80, 64, 0), (80, 80, 0), (40, 40, 0), (40, 60, 0)])  # seams of 3 and 7 pixels
+    closed = seams_closed(goal)
+    assert torch.equal(closed[:, :3], goal[:, :3])
+    assert closed[0, 3, 80, 72] == goal[0, 3, 80, 64]  # the 1 cm seam between neighbours is closed
+    assert closed[0, 3, 40, 50] == goal[0, 3, 40, 50]  # a gap wider than the window stays open
+    height = torch.randn(2, 40, 40, generator=torch.Generator().manual_seed(0))
+    for diameter in (9, 13):
+        pad = diameter // 2
+        windows = F.unfold(F.pad(height[:, None], (pad,) * 4, value=-torch.inf), diameter)
+        inside = _disc(diameter).flatten() > 0
+        expected = windows[:, inside].max(dim=1).values.view(2, 40, 40)
+        assert torch.equal(_disc_max(height, diameter), expected)
+
+
+def test_layered_places_read_a_half_filled_goal_seam_as_the_blocks_top() -> None:
+    goal = _stacked(PALLET)
+    goal[0, 3, 71:74, 58:87] = goal[0, 3, 64, 64] * 0.6  # the fused map fills the seam part way
+    layered = place_allowed(_stacked([]), goal, rule="layered")[0]
+    assert all(layered[cell] for cell in CELLS)  # not only the seam, which one block does not finish
+    assert not layered[72, 64:81].all()
+
+
+def test_a_block_straddles_a_seam_only_where_the_goal_has_one_block_across_it() -> None:
+    stair = _stacked([(80, 64, 0), (80, 80, 0), (80, 64, 1), (80, 80, 1), (80, 80, 2)])  # two, three
+    first_layer = _stacked([(80, 64, 0), (80, 80, 0)])
+    level = unstraddled_places(first_layer, stair)[0]
+    assert level[80, 64] and level[80, 80] and not level[80, 72]
+    building = _stacked(BUILDING)
+    assert unstraddled_places(_stacked(BUILDING[:4]), building)[0][BRIDGE]  # the bridge's own place
+    first_layer[0, 3, 74:87, 71:74] = first_layer[0, 3, 80, 64] / 2  # seams the fused maps fill part way
+    stair[0, 3, 74:87, 71:74] = stair[0, 3, 80, 64] * 0.75
+    layered = place_allowed(first_layer, stair, rule="layered")[0]
+    assert layered[80, 64] and not layered[80, 70:75].any()

@@ -64,8 +64,10 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
 (:func:`finishing_places`); ``ordered`` both, centred first; ``layered`` of the places a block fits
 (:func:`fitting_places`) those where it lands lowest (:func:`lowest_places`: a layer is finished before
-a block goes on it, as the expert builds), the middles among them (:func:`centred_places`), and of those
-first the ones one block finishes."""
+a block goes on it, as the expert builds), not across a seam of its support unless the goal has one
+block there (:func:`unstraddled_places`), the middles among them (:func:`centred_places`), and of those
+first the ones one block finishes; ``layered`` reads the goal with its seams closed
+(:func:`seams_closed`)."""
 
 CENTRING_RULES = ("centred", "ordered", "layered")
 """The place rules that centre their places (:func:`centred_places`, ``--centred-share``)."""
@@ -98,13 +100,72 @@ def place_allowed(
     to the middles of the lowest layer still to fill and then the places that need no block under them."""
     allowed = _allowed(_height_gap(goal, current), margin)
     if check_place_rule(rule) == "layered":  # the lowest landing places first, then their middles
+        goal = seams_closed(goal)
         allowed = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
-        allowed = centred_places(allowed, share, lowest_places(current, allowed, margin), disc=True)
+        lowest = lowest_places(current, allowed, margin)
+        lowest = _unless_empty(lowest & unstraddled_places(current, goal, margin), lowest)
+        allowed = centred_places(allowed, share, lowest, disc=True)
     elif rule in CENTRING_RULES:
         allowed = centred_places(allowed, share)
     if rule in ("bottom-up", "ordered", "layered"):
         allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)
     return allowed
+
+
+SEAM_PX = 5
+"""The window (pixels) of :func:`seams_closed`: wider than the 1 cm (3 px) gap between neighbouring
+cells' blocks, narrower than a block."""
+
+LEVEL_M = 0.01
+"""Heights within this of each other under a footprint are one level surface (a block's top face)."""
+
+
+def seams_closed(image: torch.Tensor) -> torch.Tensor:
+    """``image`` (B, 4, H, W) with the height channel's narrow dips closed (a grey closing over
+    :data:`SEAM_PX`): the fused height map shows the 1 cm seam between two goal blocks as a lower height,
+    which read pixel by pixel is a place one block finishes."""
+    pad = SEAM_PX // 2
+    dilated = F.max_pool2d(image[:, 3:4], SEAM_PX, stride=1, padding=pad)
+    closed = -F.max_pool2d(-dilated, SEAM_PX, stride=1, padding=pad)
+    return torch.cat([image[:, :3], closed], dim=1)
+
+
+def _disc_rows(diameter: int) -> list[tuple[int, int]]:
+    """(height, width) of rectangles whose union is the disc of :func:`_disc`, one per distinct width."""
+    inside = _disc(diameter)[0, 0] > 0
+    widths = inside.sum(dim=1)  # a row's width; rows grow to the middle one
+    centre = diameter // 2
+    tallest = {int(widths[r]): 2 * (r - centre) + 1 for r in range(centre, diameter)}  # width -> rows
+    return sorted((height, width) for width, height in tallest.items())
+
+
+def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
+    """The largest value (B, H, W) of ``height`` (B, H, W) in the disc of ``diameter`` around each pixel
+    (exact: the disc is a union of rectangles, one max-pool each)."""
+    stack = [
+        F.max_pool2d(height[:, None], (h, w), stride=1, padding=(h // 2, w // 2))[:, 0]
+        for h, w in _disc_rows(diameter)
+    ]
+    return torch.stack(stack).max(dim=0).values
+
+
+def _disc_spread(height: torch.Tensor, diameter: int) -> torch.Tensor:
+    """Highest minus lowest value (B, H, W) of ``height`` in the disc of ``diameter`` around each pixel."""
+    return _disc_max(height, diameter) + _disc_max(-height, diameter)
+
+
+INNER_PX = 9
+"""The disc (pixels) in which the goal must be level for a block to straddle a seam: the middle of a
+block's top face, a pixel or two either way."""
+
+
+def unstraddled_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
+    """Places (B, H, W) where a block does not straddle a seam: its footprint's support in the scene is
+    level (within :data:`LEVEL_M`), or the goal there is one block's top (level within ``margin`` over the
+    :data:`INNER_PX` disc: a bridge across two columns). A block across the seam of two stair steps is
+    not: the goal wants one more block on one of them than on the other."""
+    support = _disc_spread(current[:, 3], FOOTPRINT_PX) * HEIGHT_STD <= LEVEL_M
+    return support | (_disc_spread(goal[:, 3], INNER_PX) * HEIGHT_STD <= margin)
 
 
 def _resting_height(current: torch.Tensor) -> torch.Tensor:
