@@ -10,6 +10,7 @@ from model_scenes import BLOCK, draw_blocks
 from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import (
     MASKED_LOGIT,
+    PLACE_RULES,
     GoalMaskedGCTN,
     _disc,
     _disc_max,
@@ -255,14 +256,58 @@ def test_layered_places_read_a_half_filled_goal_seam_as_the_blocks_top() -> None
     assert not layered[72, 64:81].all()
 
 
-def test_a_block_straddles_a_seam_only_where_the_goal_has_one_block_across_it() -> None:
+def test_a_block_straddles_a_seam_only_where_it_is_the_last_block_its_region_needs() -> None:
     stair = _stacked([(80, 64, 0), (80, 80, 0), (80, 64, 1), (80, 80, 1), (80, 80, 2)])  # two, three
     first_layer = _stacked([(80, 64, 0), (80, 80, 0)])
-    level = unstraddled_places(first_layer, stair)[0]
+    level = unstraddled_places(first_layer, place_allowed(first_layer, stair))[0]
     assert level[80, 64] and level[80, 80] and not level[80, 72]
-    building = _stacked(BUILDING)
-    assert unstraddled_places(_stacked(BUILDING[:4]), building)[0][BRIDGE]  # the bridge's own place
+    row = _stacked([(80, 64 + 16 * i, layer) for i in range(3) for layer in (0, 1)])  # flat-topped
+    row_base = _stacked([(80, 64 + 16 * i, 0) for i in range(3)])
+    assert not unstraddled_places(row_base, place_allowed(row_base, row))[0][80, 72]
+    building, columns = _stacked(BUILDING), _stacked(BUILDING[:4])
+    assert unstraddled_places(columns, place_allowed(columns, building))[0][BRIDGE]  # the last block
     first_layer[0, 3, 74:87, 71:74] = first_layer[0, 3, 80, 64] / 2  # seams the fused maps fill part way
     stair[0, 3, 74:87, 71:74] = stair[0, 3, 80, 64] * 0.75
     layered = place_allowed(first_layer, stair, rule="layered")[0]
     assert layered[80, 64] and not layered[80, 70:75].any()
+    row_base[0, 3, 74:87, [71, 72, 73, 87, 88, 89]] = row_base[0, 3, 80, 64] / 2
+    layered = place_allowed(row_base, row, rule="layered")[0]
+    rows, cols = torch.nonzero(layered, as_tuple=True)
+    assert ((cols - 64).abs() <= 1).any() and not ((cols >= 68) & (cols <= 76)).any()
+
+
+@pytest.mark.parametrize("rule", PLACE_RULES)
+def test_every_place_rule_commutes_with_the_turns_and_mirrors(rule: str) -> None:
+    goal = _stacked([(60, 64, 0), (60, 80, 0), (60, 64, 1), (60, 80, 1), (60, 80, 2), (100, 40, 0)])
+    current = _stacked([(60, 64, 0), (60, 80, 0)])
+    current[0, 3, 54:67, 71:74] = current[0, 3, 60, 64] / 2  # a part-filled seam
+    allowed = place_allowed(current, goal, rule=rule)
+    for turns in range(1, 4):
+        turned = place_allowed(
+            torch.rot90(current, turns, (2, 3)), torch.rot90(goal, turns, (2, 3)), rule=rule
+        )
+        assert torch.equal(turned, torch.rot90(allowed, turns, (1, 2)))
+    assert torch.equal(place_allowed(current.flip(3), goal.flip(3), rule=rule), allowed.flip(2))
+
+
+def _turned_cells(centres: list[tuple[float, float]], layer_height: float = 0.04) -> torch.Tensor:
+    """An RGB-H image of 13-pixel columns turned by 45 degrees at ``centres`` (row, col), their tops at
+    ``layer_height`` metres."""
+    color, height = draw_blocks([])
+    rows, cols = torch.meshgrid(torch.arange(160.0), torch.arange(160.0), indexing="ij")
+    for r, c in centres:
+        cell = ((rows - r) * 0.7071 - (cols - c) * 0.7071).abs().le(6.4)
+        cell &= ((rows - r) * 0.7071 + (cols - c) * 0.7071).abs().le(6.4)
+        height[cell] = layer_height
+    return to_rgbh(color, height)
+
+
+def test_the_middle_of_a_turned_row_is_found_between_its_placed_neighbours() -> None:
+    step = 16 / 2**0.5  # cells 16 px (5 cm) apart along a row turned by 45 degrees
+    row = [(80 - step, 80 - step), (80.0, 80.0), (80 + step, 80 + step)]
+    near = 14.5 / 2**0.5  # the two ends placed 1.5 px (5 mm) nearer the middle than the goal has them
+    goal = _turned_cells(row, layer_height=0.08)  # two layers, as stack-rectangle
+    ends = _turned_cells([(80 - near, 80 - near), (80 + near, 80 + near)])
+    layered = place_allowed(ends, goal, rule="layered")[0]
+    rows, cols = torch.nonzero(layered, as_tuple=True)
+    assert layered[80, 80] and (rows - 80).abs().max() <= 2 and (cols - 80).abs().max() <= 2

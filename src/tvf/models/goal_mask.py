@@ -10,8 +10,8 @@ current one by as much. It needs no training and reads nothing but the two RGB-H
 ones inside the search too). A state where the mask would forbid every pixel keeps its unmasked map.
 ``--mask-places`` narrows the places further (:data:`PLACE_RULES`): to the middles of the regions to fill,
 and to the places one block finishes before those that need another block under them first (a bridge
-waits for its two columns). Pixel-wise and with square windows, the mask commutes with the turns and
-mirrors of :mod:`tvf.models.symmetry`, which wraps it.
+waits for its two columns). Pixel-wise and with square and disc windows, the mask commutes with the
+turns and mirrors of :mod:`tvf.models.symmetry`, which wraps it.
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
 (:func:`finishing_places`); ``ordered`` both, centred first; ``layered`` of the places a block fits
 (:func:`fitting_places`) those where it lands lowest (:func:`lowest_places`: a layer is finished before
-a block goes on it, as the expert builds), not across a seam of its support unless the goal has one
-block there (:func:`unstraddled_places`), the middles among them (:func:`centred_places`), and of those
+a block goes on it, as the expert builds), not across a seam of its support unless it is the last
+block its region needs (:func:`unstraddled_places`: a bridge), the middles among them (:func:`centred_places`), and of those
 first the ones one block finishes; ``layered`` reads the goal with its seams closed
 (:func:`seams_closed`)."""
 
@@ -103,7 +103,7 @@ def place_allowed(
         goal = seams_closed(goal)
         allowed = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
         lowest = lowest_places(current, allowed, margin)
-        lowest = _unless_empty(lowest & unstraddled_places(current, goal, margin), lowest)
+        lowest = _unless_empty(lowest & unstraddled_places(current, allowed), lowest)
         allowed = centred_places(allowed, share, lowest, disc=True)
     elif rule in CENTRING_RULES:
         allowed = centred_places(allowed, share)
@@ -154,23 +154,35 @@ def _disc_spread(height: torch.Tensor, diameter: int) -> torch.Tensor:
     return _disc_max(height, diameter) + _disc_max(-height, diameter)
 
 
-INNER_PX = 9
-"""The disc (pixels) in which the goal must be level for a block to straddle a seam: the middle of a
-block's top face, a pixel or two either way."""
+BRIDGE_SHARE = 0.6
+"""The share of the fill pixels around a place (a window twice a footprint wide) that its footprint's
+disc must hold for a block to straddle a seam of its support: a bridge is the last block its region
+needs (its disc holds about 0.8 of a lone 13-pixel square), a block across two cells of a row still to
+fill about 0.4."""
 
 
-def unstraddled_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
-    """Places (B, H, W) where a block does not straddle a seam: its footprint's support in the scene is
-    level (within :data:`LEVEL_M`), or the goal there is one block's top (level within ``margin`` over the
-    :data:`INNER_PX` disc: a bridge across two columns). A block across the seam of two stair steps is
-    not: the goal wants one more block on one of them than on the other."""
+def unstraddled_places(
+    current: torch.Tensor, allowed: torch.Tensor, share: float = BRIDGE_SHARE
+) -> torch.Tensor:
+    """Places (B, H, W) where a block does not straddle a seam of its support: the support under its
+    footprint's disc is level within :data:`LEVEL_M`, or the block is the last one the fill region
+    ``allowed`` (B, H, W) needs around it (its disc holds at least ``share`` of the region's pixels in
+    the window twice a footprint wide: a bridge across two finished columns). A block across the seam
+    of two stair steps, or of two cells of a row, is not: the cells beside it still need blocks."""
     support = _disc_spread(current[:, 3], FOOTPRINT_PX) * HEIGHT_STD <= LEVEL_M
-    return support | (_disc_spread(goal[:, 3], INNER_PX) * HEIGHT_STD <= margin)
+    fill = allowed[:, None].float()
+    disc = _disc().gt(0).float().to(fill.device)
+    inside = F.conv2d(fill, disc, padding=FOOTPRINT_PX // 2)[:, 0]
+    window = 2 * FOOTPRINT_PX - 1
+    around = F.avg_pool2d(fill, window, stride=1, padding=window // 2)[:, 0] * window**2
+    return support | (inside >= share * around)
 
 
 def _resting_height(current: torch.Tensor) -> torch.Tensor:
-    """Normalised height (B, H, W) a block placed at each pixel lands on: the highest of its footprint."""
-    return F.max_pool2d(current[:, 3:4], FOOTPRINT_PX, stride=1, padding=FOOTPRINT_PX // 2)[:, 0]
+    """Normalised height (B, H, W) a block placed at each pixel lands on: the highest of its footprint,
+    read over the disc inscribed in it (the same at any yaw: a square's corners reach the neighbours of a
+    turned row of cells)."""
+    return _disc_max(current[:, 3], FOOTPRINT_PX)
 
 
 def finishing_places(current: torch.Tensor, goal: torch.Tensor, margin: float = MARGIN_M) -> torch.Tensor:
