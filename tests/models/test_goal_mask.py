@@ -16,13 +16,13 @@ from tvf.models.goal_mask import (
     _disc_max,
     centred_places,
     fitting_places,
+    flush_places,
     goal_masked,
     lowest_places,
     mask_of,
     pick_allowed,
     place_allowed,
     seams_closed,
-    unstraddled_places,
 )
 from tvf.models.images import to_rgbh
 from tvf.models.presets import SMOKE
@@ -256,24 +256,29 @@ def test_layered_places_read_a_half_filled_goal_seam_as_the_blocks_top() -> None
     assert not layered[72, 64:81].all()
 
 
-def test_a_block_straddles_a_seam_only_where_it_is_the_last_block_its_region_needs() -> None:
-    stair = _stacked([(80, 64, 0), (80, 80, 0), (80, 64, 1), (80, 80, 1), (80, 80, 2)])  # two, three
-    first_layer = _stacked([(80, 64, 0), (80, 80, 0)])
-    level = unstraddled_places(first_layer, place_allowed(first_layer, stair))[0]
-    assert level[80, 64] and level[80, 80] and not level[80, 72]
-    row = _stacked([(80, 64 + 16 * i, layer) for i in range(3) for layer in (0, 1)])  # flat-topped
-    row_base = _stacked([(80, 64 + 16 * i, 0) for i in range(3)])
-    assert not unstraddled_places(row_base, place_allowed(row_base, row))[0][80, 72]
-    building, columns = _stacked(BUILDING), _stacked(BUILDING[:4])
-    assert unstraddled_places(columns, place_allowed(columns, building))[0][BRIDGE]  # the last block
-    first_layer[0, 3, 74:87, 71:74] = first_layer[0, 3, 80, 64] / 2  # seams the fused maps fill part way
-    stair[0, 3, 74:87, 71:74] = stair[0, 3, 80, 64] * 0.75
-    layered = place_allowed(first_layer, stair, rule="layered")[0]
-    assert layered[80, 64] and not layered[80, 70:75].any()
-    row_base[0, 3, 74:87, [71, 72, 73, 87, 88, 89]] = row_base[0, 3, 80, 64] / 2
-    layered = place_allowed(row_base, row, rule="layered")[0]
-    rows, cols = torch.nonzero(layered, as_tuple=True)
-    assert ((cols - 64).abs() <= 1).any() and not ((cols >= 68) & (cols <= 76)).any()
+def _columns(places: torch.Tensor) -> set[int]:
+    return set(torch.nonzero(places[0])[:, 1].tolist())
+
+
+def test_layered_places_fill_a_layer_from_its_ends_in_onto_the_goals_cells() -> None:
+    base = [(80, 64, 0), (80, 80, 0), (80, 96, 0)]  # a row of three cells, 16 px (5 cm) apart
+    pyramid = _stacked([*base, (80, 72, 1), (80, 88, 1), (80, 80, 2)])
+    row = _stacked([*base, *((r, c, 1) for r, c, _ in base)])  # a flat-topped row two layers high
+    first_layer = _stacked(base)
+    first_layer[0, 3, 74:87, [71, 72, 73, 87, 88, 89]] = first_layer[0, 3, 80, 64] / 2  # part-filled seams
+    assert _columns(place_allowed(first_layer, pyramid, rule="layered")) <= {71, 72, 73, 87, 88, 89}
+    assert _columns(place_allowed(first_layer, row, rule="layered")) <= {63, 64, 65, 95, 96, 97}
+    assert _columns(place_allowed(_stacked([]), row, rule="layered")) <= {63, 64, 65, 95, 96, 97}
+    corners = place_allowed(_stacked([]), _stacked(PALLET), rule="layered")[0]
+    rows, cols = torch.nonzero(corners, as_tuple=True)
+    assert all(corners[cell] for cell in CELLS) and not corners[72, 72]  # not between the four cells
+    assert ((rows - 72).abs() >= 7).all() and ((cols - 72).abs() >= 7).all()
+    building = _stacked(BUILDING)  # the bridge is the only place once its columns stand
+    assert place_allowed(_stacked(BUILDING[:4]), building, rule="layered")[0][BRIDGE]
+    fill = torch.zeros(1, 160, 160, dtype=torch.bool)
+    fill[0, 74:87, 58:103] = True  # a row's fill region; every place of it is a candidate
+    ends = _columns(flush_places(fill, fill))
+    assert ends and all(c < 67 or c > 93 for c in ends)  # the row's ends, not its middle
 
 
 @pytest.mark.parametrize("rule", PLACE_RULES)

@@ -64,9 +64,9 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
 (:func:`finishing_places`); ``ordered`` both, centred first; ``layered`` of the places a block fits
 (:func:`fitting_places`) those where it lands lowest (:func:`lowest_places`: a layer is finished before
-a block goes on it, as the expert builds), not across a seam of its support unless it is the last
-block its region needs (:func:`unstraddled_places`: a bridge), the middles among them (:func:`centred_places`), and of those
-first the ones one block finishes; ``layered`` reads the goal with its seams closed
+a block goes on it, as the expert builds), the middles among them (:func:`centred_places`), of those
+the ones flush against the region's boundary (:func:`flush_places`: a layer filled from its corners
+in), and of those first the ones one block finishes; ``layered`` reads the goal with its seams closed
 (:func:`seams_closed`)."""
 
 CENTRING_RULES = ("centred", "ordered", "layered")
@@ -102,9 +102,8 @@ def place_allowed(
     if check_place_rule(rule) == "layered":  # the lowest landing places first, then their middles
         goal = seams_closed(goal)
         allowed = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
-        lowest = lowest_places(current, allowed, margin)
-        lowest = _unless_empty(lowest & unstraddled_places(current, allowed), lowest)
-        allowed = centred_places(allowed, share, lowest, disc=True)
+        centred = centred_places(allowed, share, lowest_places(current, allowed, margin), disc=True)
+        allowed = flush_places(centred, allowed)
     elif rule in CENTRING_RULES:
         allowed = centred_places(allowed, share)
     if rule in ("bottom-up", "ordered", "layered"):
@@ -115,9 +114,6 @@ def place_allowed(
 SEAM_PX = 5
 """The window (pixels) of :func:`seams_closed`: wider than the 1 cm (3 px) gap between neighbouring
 cells' blocks, narrower than a block."""
-
-LEVEL_M = 0.01
-"""Heights within this of each other under a footprint are one level surface (a block's top face)."""
 
 
 def seams_closed(image: torch.Tensor) -> torch.Tensor:
@@ -149,33 +145,28 @@ def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
     return torch.stack(stack).max(dim=0).values
 
 
-def _disc_spread(height: torch.Tensor, diameter: int) -> torch.Tensor:
-    """Highest minus lowest value (B, H, W) of ``height`` in the disc of ``diameter`` around each pixel."""
-    return _disc_max(height, diameter) + _disc_max(-height, diameter)
+FLUSH_SHARE = 0.9
+"""A flush place's disc holds at least this share of the best flush place's share of the fill pixels
+around it (:func:`flush_places`; about two pixels from a region's end, as each pixel inward adds a
+column of the region to the window)."""
 
 
-BRIDGE_SHARE = 0.6
-"""The share of the fill pixels around a place (a window twice a footprint wide) that its footprint's
-disc must hold for a block to straddle a seam of its support: a bridge is the last block its region
-needs (its disc holds about 0.8 of a lone 13-pixel square), a block across two cells of a row still to
-fill about 0.4."""
-
-
-def unstraddled_places(
-    current: torch.Tensor, allowed: torch.Tensor, share: float = BRIDGE_SHARE
-) -> torch.Tensor:
-    """Places (B, H, W) where a block does not straddle a seam of its support: the support under its
-    footprint's disc is level within :data:`LEVEL_M`, or the block is the last one the fill region
-    ``allowed`` (B, H, W) needs around it (its disc holds at least ``share`` of the region's pixels in
-    the window twice a footprint wide: a bridge across two finished columns). A block across the seam
-    of two stair steps, or of two cells of a row, is not: the cells beside it still need blocks."""
-    support = _disc_spread(current[:, 3], FOOTPRINT_PX) * HEIGHT_STD <= LEVEL_M
-    fill = allowed[:, None].float()
-    disc = _disc().gt(0).float().to(fill.device)
-    inside = F.conv2d(fill, disc, padding=FOOTPRINT_PX // 2)[:, 0]
+def flush_places(
+    places: torch.Tensor, fill: torch.Tensor, share: float = FLUSH_SHARE
+) -> torch.Tensor:  # fmt: skip
+    """The pixels of ``places`` (B, H, W) pushed furthest against the boundary of the fill region
+    ``fill`` (B, H, W): whose footprint's disc holds at least ``share`` of the best one's share of the
+    fill pixels in the window twice a footprint wide around it. A layer is filled from its corners and
+    ends in, so each block lands on the goal's cell grid: a row's blocks on their cells, not across the
+    seam of two; a pyramid's second layer across two blocks of the first, as the goal has it; a
+    pallet's first block in a corner, not between its four cells."""
+    region = fill[:, None].float()
+    inside = F.conv2d(region, _disc().gt(0).float().to(region.device), padding=FOOTPRINT_PX // 2)[:, 0]
     window = 2 * FOOTPRINT_PX - 1
-    around = F.avg_pool2d(fill, window, stride=1, padding=window // 2)[:, 0] * window**2
-    return support | (inside >= share * around)
+    around = F.avg_pool2d(region, window, stride=1, padding=window // 2)[:, 0] * window**2
+    held = inside / around.clamp(min=1.0)
+    best = torch.where(places, held, torch.zeros_like(held)).flatten(1).max(dim=1).values
+    return places & (held >= share * best.view(-1, 1, 1))
 
 
 def _resting_height(current: torch.Tensor) -> torch.Tensor:
