@@ -223,12 +223,8 @@ def test_layered_places_skip_a_sliver_a_misplaced_block_left_and_centre_turned_c
     assert fitting_places(shifted, goal)[0][80, 76] and not fitting_places(shifted, goal)[0][80, 55]
     layered = place_allowed(shifted, goal, rule="layered")[0]
     assert layered[80, 76] and not layered[:, :70].any()  # onto the column, not onto the sliver
-    color, height = draw_blocks([])
-    rows, cols = torch.meshgrid(torch.arange(160.0), torch.arange(160.0), indexing="ij")
-    turned = ((rows - 80) * 0.7071 - (cols - 80) * 0.7071).abs().le(6.4)
-    turned &= ((rows - 80) * 0.7071 + (cols - 80) * 0.7071).abs().le(6.4)  # a cell turned by 45 degrees
-    height[turned] = 0.04
-    middles = place_allowed(to_rgbh(*draw_blocks([])), to_rgbh(color, height), rule="layered")[0]
+    turned = _turned_cells([(80.0, 80.0)])  # a cell turned by 45 degrees
+    middles = place_allowed(to_rgbh(*draw_blocks([])), turned, rule="layered")[0]
     rows, cols = torch.nonzero(middles, as_tuple=True)
     assert middles[80, 80] and (rows - 80).abs().max() <= 1 and (cols - 80).abs().max() <= 1
 

@@ -151,9 +151,7 @@ around it (:func:`flush_places`; about two pixels from a region's end, as each p
 column of the region to the window)."""
 
 
-def flush_places(
-    places: torch.Tensor, fill: torch.Tensor, share: float = FLUSH_SHARE
-) -> torch.Tensor:  # fmt: skip
+def flush_places(places: torch.Tensor, fill: torch.Tensor, share: float = FLUSH_SHARE) -> torch.Tensor:
     """The pixels of ``places`` (B, H, W) pushed furthest against the boundary of the fill region
     ``fill`` (B, H, W): whose footprint's disc holds at least ``share`` of the best one's share of the
     fill pixels in the window twice a footprint wide around it. A layer is filled from its corners and
