@@ -59,8 +59,9 @@ class PlannerFlags:
     mask_places: str | None = None
     """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
-    ordered (centred, then bottom-up) | layered (centred, on the lowest layer still to fill, then
-    bottom-up); default: the method's (docs/planner.md)."""
+    ordered (centred, then bottom-up) | layered (centred, on the lowest layer still to fill, filled
+    from its ends and corners in, then bottom-up; best with --centre-picks True); default: the
+    method's (docs/planner.md)."""
     centred_share: float | None = None
     """With --mask-places centred, ordered or layered: a place's block footprint must hold this share of the
     allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
