@@ -16,6 +16,8 @@ turns and mirrors of :mod:`tvf.models.symmetry`, which wraps it.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 
@@ -126,13 +128,15 @@ def seams_closed(image: torch.Tensor) -> torch.Tensor:
     return torch.cat([image[:, :3], closed], dim=1)
 
 
-def _disc_rows(diameter: int) -> list[tuple[int, int]]:
-    """(height, width) of rectangles whose union is the disc of :func:`_disc`, one per distinct width."""
+@functools.cache
+def _disc_rows(diameter: int) -> tuple[tuple[int, int], ...]:
+    """(height, width) of rectangles whose union is the disc of :func:`_disc`, one per distinct width
+    (derived once per diameter: the landing height reads them at every call of the mask)."""
     inside = _disc(diameter)[0, 0] > 0
     widths = inside.sum(dim=1)  # a row's width; rows grow to the middle one
     centre = diameter // 2
     tallest = {int(widths[r]): 2 * (r - centre) + 1 for r in range(centre, diameter)}  # width -> rows
-    return sorted((height, width) for width, height in tallest.items())
+    return tuple(sorted((height, width) for width, height in tallest.items()))
 
 
 def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
