@@ -183,7 +183,21 @@ METHODS: dict[str, Method] = {
         # "A goal-difference mask"; TVF-L did not gain from it); the paper's is --goal-mask False
         # GCTN and TVF-S: their place turns corrected from the height maps (docs/results.md, "Turns read
         # from the height maps"); the paper's is --refine-yaw False
-        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, goal_mask=True, refine_yaw=True),
+        # every learned method: the mask's layered places (a layer filled from its ends and corners in) and
+        # picks at the centres of the block faces, adopted by a registered rule on validation seeds
+        # (docs/results.md, "Layered places, second round"); the paper's is --mask-places gap
+        # --centre-picks False (docs/deviations.md)
+        Method(
+            "gctn",
+            "GCTN",
+            _gctn,
+            models=("gctn",),
+            turns=4,
+            goal_mask=True,
+            refine_yaw=True,
+            mask_places="layered",
+            centre_picks=True,
+        ),
         # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
         # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
         # paper's rule is --tie-band 0
@@ -196,6 +210,8 @@ METHODS: dict[str, Method] = {
             turns=4,
             goal_mask=True,
             refine_yaw=True,
+            mask_places="layered",
+            centre_picks=True,
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
         # masked and refined together (either alone did not gain; docs/results.md, "TVF-L with the mask
@@ -212,6 +228,8 @@ METHODS: dict[str, Method] = {
             turns=8,
             goal_mask=True,
             refine_yaw=True,
+            mask_places="layered",
+            centre_picks=True,
         ),
     )
 }
