@@ -155,7 +155,7 @@ def test_a_goal_masked_planner_picks_a_block_the_goal_does_not_have_there(scene)
 
     _, obs = scene
     goal = obs["desired_goal"]
-    planner = tvf.load_planner("gctn", goal_mask=True)
+    planner = tvf.load_planner("gctn", goal_mask=True, centre_picks=False)  # the GCTN's own pick pixel
     assert isinstance(planner._policy.model.gctn, GoalMaskedGCTN)  # inside the method's four turns
     decision = planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
     current, target = (observation_tensor(o, torch.device("cpu")) for o in (obs, goal))

@@ -196,12 +196,13 @@ def test_eval_records_the_resolved_goal_mask_and_refuses_to_resume_an_unmasked_f
     meta_path = tmp_path / "e" / "eval.json"
     meta = json.loads(meta_path.read_text())
     assert meta["goal_mask"] is True  # the GCTN's default, resolved
-    del meta["goal_mask"]  # a folder from before the flag: its GCTN was unmasked
+    for key in ("goal_mask", "mask_places", "centre_picks"):  # a folder from before the flags: unmasked
+        del meta[key]
     meta_path.write_text(json.dumps(meta))
     code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))
-    assert code == 2 and "other goal_mask" in err
-    code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", *args,
-                       "--out", str(tmp_path / "e"))  # fmt: skip
+    assert code == 2 and "with other centre_picks, goal_mask, mask_places" in err, err
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", "--centre-picks", "False",
+                       *args, "--out", str(tmp_path / "e"))  # fmt: skip
     assert code == 0, err  # the paper's unmasked GCTN resumes it
     oracle = ("eval", "--method", "oracle", "--goal-mask", "True", "--out", str(tmp_path / "o"))
     code, _, err = run(capsys, *oracle)
@@ -221,12 +222,11 @@ def test_eval_records_a_refined_yaw_and_resumes_only_with_it(capsys, tmp_path, s
 def test_eval_records_centred_picks_and_resumes_only_with_them(capsys, tmp_path, smoke_weights):
     args = ("--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks", "stack-stair", "--episodes", "1",
             "--out", str(tmp_path / "e"))  # fmt: skip
-    chosen = ("--centre-picks", "True", "--mask-places", "layered")
-    code, _, err = run(capsys, "eval", "--method", "gctn", *chosen, *args)
+    code, _, err = run(capsys, "eval", "--method", "gctn", *args)
     assert code == 0, err
     recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
-    assert recorded["centre_picks"] is True and recorded["mask_places"] == "layered"
-    code, _, err = run(capsys, "eval", "--method", "gctn", "--mask-places", "layered", *args)
+    assert recorded["centre_picks"] is True and recorded["mask_places"] == "layered"  # the defaults
+    code, _, err = run(capsys, "eval", "--method", "gctn", "--centre-picks", "False", *args)
     assert code == 2 and "other centre_picks" in err, err  # the GCTN's own pick pixels: another evaluation
 
 
@@ -266,7 +266,7 @@ def test_eval_records_the_mask_places_and_refuses_to_resume_with_another_rule(
     assert code == 0, err
     assert json.loads((tmp_path / "e" / "eval.json").read_text())["mask_places"] == "ordered"
     code, _, err = run(capsys, "eval", "--method", "gctn", *args)
-    assert code == 2 and "other mask_places" in err  # the default rule (gap) is another evaluation
+    assert code == 2 and "other mask_places" in err  # the default rule (layered) is another evaluation
     code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", "--mask-places", "ordered",
                        *args)  # fmt: skip
     assert code == 2 and "add --goal-mask True" in err
@@ -285,5 +285,6 @@ def test_eval_records_a_centred_share_and_root_alpha_and_resumes_only_with_them(
     assert recorded["tie_band"] == 0.002  # TVF-S's resolved default, so an older folder is not resumed
     code, _, err = run(capsys, "eval", "--method", "tvf-small", "--mask-places", "ordered", *args)
     assert code == 2 and "other centred_share, root_alpha" in err, err
-    code, _, err = run(capsys, "eval", "--method", "tvf-small", "--centred-share", "0.75", *args)
+    gap = ("--mask-places", "gap")  # the goal mask's every place: nothing to centre
+    code, _, err = run(capsys, "eval", "--method", "tvf-small", *gap, "--centred-share", "0.75", *args)
     assert code == 2 and "--centred-share sets how the goal mask centres its places" in err, err

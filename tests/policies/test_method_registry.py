@@ -57,12 +57,15 @@ def test_the_spec_turns_choose_the_symmetrised_gctn():
     from tvf.models.gctn import GCTN
     from tvf.models.symmetry import SymmetrizedGCTN
 
-    paper = make_policy(PolicySpec("gctn", turns=1, goal_mask=False))
+    paper = make_policy(PolicySpec("gctn", turns=1, goal_mask=False, centre_picks=False))
     default = make_policy(PolicySpec("gctn"))
     assert isinstance(default.model, SymmetrizedGCTN) and default.model.turns == 4
     assert type(paper.model) is GCTN
     assert make_policy(PolicySpec("tvf-small")).search.gctn.turns == 4  # every method's default now
-    assert type(make_policy(PolicySpec("tvf-small", turns=1, goal_mask=False)).search.gctn) is GCTN
+    assert (
+        type(make_policy(PolicySpec("tvf-small", turns=1, goal_mask=False, centre_picks=False)).search.gctn)
+        is GCTN
+    )
     assert make_policy(PolicySpec("tvf-large")).search.gctn.turns == 8  # and the mirror images
     assert make_policy(PolicySpec("tvf-large", turns=2)).search.gctn.turns == 2
 
@@ -70,16 +73,22 @@ def test_the_spec_turns_choose_the_symmetrised_gctn():
 def test_the_spec_goal_mask_wraps_the_gctn_inside_the_turns():
     from tvf.models.gctn import GCTN
     from tvf.models.goal_mask import GoalMaskedGCTN
+    from tvf.models.pick_centre import CentredPickGCTN
     from tvf.models.symmetry import SymmetrizedGCTN
 
-    masked = make_policy(PolicySpec("tvf-large", goal_mask=True)).search.gctn
+    def plain(**options) -> PolicySpec:  # picks where the GCTN puts them: the mask right under the turns
+        return PolicySpec(centre_picks=False, **options)
+
+    masked = make_policy(plain(method="tvf-large", goal_mask=True)).search.gctn
     assert isinstance(masked, SymmetrizedGCTN) and isinstance(masked.gctn, GoalMaskedGCTN)
-    assert isinstance(make_policy(PolicySpec("gctn", goal_mask=True, turns=1)).model, GoalMaskedGCTN)
-    assert isinstance(make_policy(PolicySpec("gctn")).model.gctn, GoalMaskedGCTN)  # the GCTN's default
-    assert type(make_policy(PolicySpec("gctn", goal_mask=False)).model.gctn) is GCTN  # the paper's
-    assert isinstance(make_policy(PolicySpec("tvf-small")).search.gctn.gctn, GoalMaskedGCTN)
-    assert isinstance(make_policy(PolicySpec("tvf-large")).search.gctn.gctn, GoalMaskedGCTN)
-    assert type(make_policy(PolicySpec("tvf-large", goal_mask=False)).search.gctn.gctn) is GCTN
+    assert isinstance(make_policy(plain(method="gctn", goal_mask=True, turns=1)).model, GoalMaskedGCTN)
+    assert isinstance(make_policy(plain(method="gctn")).model.gctn, GoalMaskedGCTN)  # the GCTN's default
+    assert type(make_policy(plain(method="gctn", goal_mask=False)).model.gctn) is GCTN  # the paper's
+    assert isinstance(make_policy(plain(method="tvf-small")).search.gctn.gctn, GoalMaskedGCTN)
+    assert isinstance(make_policy(plain(method="tvf-large")).search.gctn.gctn, GoalMaskedGCTN)
+    assert type(make_policy(plain(method="tvf-large", goal_mask=False)).search.gctn.gctn) is GCTN
+    default = make_policy(PolicySpec("gctn")).model.gctn  # centred picks wrap the masked GCTN
+    assert isinstance(default, CentredPickGCTN) and isinstance(default.gctn, GoalMaskedGCTN)
     with pytest.raises(TvfError, match="oracle has no GCTN to mask; --goal-mask needs gctn"):
         make_policy(PolicySpec("oracle", goal_mask=True))
 
@@ -97,9 +106,10 @@ def test_the_spec_refine_yaw_reaches_the_policy_and_needs_a_gctn():
 
 
 def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
-    ordered = make_policy(PolicySpec("tvf-large", goal_mask=True, mask_places="ordered")).search.gctn.gctn
-    assert ordered.places == "ordered" and make_policy(PolicySpec("gctn")).model.gctn.places == "gap"
-    assert make_policy(PolicySpec("gctn", mask_places="centred", turns=1)).model.places == "centred"
+    ordered = mask_of(make_policy(PolicySpec("tvf-large", goal_mask=True, mask_places="ordered")).search.gctn)
+    assert ordered.places == "ordered" and mask_of(make_policy(PolicySpec("gctn")).model).places == "layered"
+    assert mask_of(make_policy(PolicySpec("gctn", mask_places="gap")).model).places == "gap"
+    assert mask_of(make_policy(PolicySpec("gctn", mask_places="centred", turns=1)).model).places == "centred"
     with pytest.raises(TvfError, match="unknown --mask-places 'tallest'; choose one of gap, centred"):
         make_policy(PolicySpec("gctn", mask_places="tallest"))
     with pytest.raises(TvfError, match="tvf-large does not use here; add --goal-mask True"):
@@ -113,7 +123,8 @@ def test_the_spec_centred_share_and_root_alpha_reach_the_mask_and_the_search():
     with pytest.raises(TvfError, match=r"--centred-share must be a fraction in \(0, 1\], got 1.2"):
         make_policy(PolicySpec("gctn", mask_places="centred", centred_share=1.2))
     with pytest.raises(TvfError, match="add --goal-mask True --mask-places ordered"):
-        make_policy(PolicySpec("gctn", centred_share=0.75))  # gap keeps every place: nothing to centre
+        make_policy(PolicySpec("gctn", mask_places="gap", centred_share=0.75))  # gap: nothing to centre
+    assert mask_of(make_policy(PolicySpec("gctn", centred_share=0.75)).model).share == 0.75  # layered
     with pytest.raises(TvfError, match=r"drop --root-alpha"):
         make_policy(PolicySpec("gctn", root_alpha=0.001))
 
@@ -129,9 +140,8 @@ def test_the_spec_centre_picks_wrap_the_gctn_under_its_symmetrisation_and_need_a
             gctn = gctn.gctn
         return False
 
-    assert centring(make_policy(PolicySpec("gctn", centre_picks=True)).model)
-    layered = PolicySpec("tvf-large", centre_picks=True, mask_places="layered")
-    assert centring(make_policy(layered).search.gctn)
+    assert centring(make_policy(PolicySpec("gctn")).model)  # the default
+    assert centring(make_policy(PolicySpec("tvf-large")).search.gctn)
     assert not centring(make_policy(PolicySpec("gctn", centre_picks=False)).model)
     assert isinstance(make_policy(PolicySpec("tvf-small", centre_picks=True)).search.gctn, SymmetrizedGCTN)
     with pytest.raises(TvfError, match="oracle has no GCTN picks to centre; --centre-picks needs gctn"):
