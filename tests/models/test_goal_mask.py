@@ -11,8 +11,11 @@ from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import (
     MASKED_LOGIT,
     PLACE_RULES,
+    SEAM_PX,
     GoalMaskedGCTN,
+    _box_count,
     _disc,
+    _disc_count,
     _disc_max,
     centred_places,
     fitting_places,
@@ -242,6 +245,23 @@ def test_the_goal_seams_close_and_a_disc_maximum_matches_the_disc() -> None:
         inside = _disc(diameter).flatten() > 0
         expected = windows[:, inside].max(dim=1).values.view(2, 40, 40)
         assert torch.equal(_disc_max(height, diameter), expected)
+
+
+def test_disc_and_box_counts_and_the_seam_closing_match_plain_convolutions_and_pools() -> None:
+    generator = torch.Generator().manual_seed(1)
+    mask = torch.rand(3, 37, 41, generator=generator) > torch.tensor([0.2, 0.5, 0.9]).view(3, 1, 1)
+    region = mask[:, None].float()
+    for diameter in (5, 13):
+        kernel = (_disc(diameter) > 0).float()
+        expected = F.conv2d(region, kernel, padding=diameter // 2)[:, 0]
+        assert torch.equal(_disc_count(mask, diameter).float(), expected)
+    for size in (3, 25):
+        expected = F.avg_pool2d(region, size, stride=1, padding=size // 2, divisor_override=1)[:, 0]
+        assert torch.equal(_box_count(mask, size).float(), expected)
+    image = torch.rand(2, 4, 30, 30, generator=generator)
+    opened = F.max_pool2d(image[:, 3:4], SEAM_PX, stride=1, padding=SEAM_PX // 2)
+    closed = -F.max_pool2d(-opened, SEAM_PX, stride=1, padding=SEAM_PX // 2)
+    assert torch.equal(seams_closed(image)[:, 3:4], closed)
 
 
 def test_layered_places_read_a_half_filled_goal_seam_as_the_blocks_top() -> None:

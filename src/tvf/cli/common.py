@@ -61,7 +61,7 @@ class PlannerFlags:
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
     ordered (centred, then bottom-up) | layered (centred, on the lowest layer still to fill, filled
     from its ends and corners in, then bottom-up; best with --centre-picks True); default: the
-    method's (docs/planner.md)."""
+    method's, layered for gctn, tvf-small and tvf-large (docs/planner.md)."""
     centred_share: float | None = None
     """With --mask-places centred, ordered or layered: a place's block footprint must hold this share of the
     allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
@@ -73,7 +73,8 @@ class PlannerFlags:
     centre_picks: bool | None = None
     """GCTN and TVF: True moves each pick the GCTN chooses to the centre of the block's top face under it,
     read from the height map, so the place it predicts is where the block's middle goes (no training;
-    docs/planner.md); False: the GCTN's pick pixel (the paper's); default: the method's."""
+    docs/planner.md); False: the GCTN's pick pixel (the paper's); default: the method's, True for gctn,
+    tvf-small and tvf-large."""
 
     order_branch: bool | None = None
     """TVF with the goal mask: True makes one proposal of every node the best place of the mask's ordered

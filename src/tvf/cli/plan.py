@@ -146,7 +146,7 @@ class PlanCmd:
     paper's; docs/planner.md); default: the method's."""
     mask_places: str | None = None
     """With the goal mask: gap | centred | bottom-up | ordered | layered, the places it keeps
-    (docs/planner.md); default: the method's."""
+    (docs/planner.md); default: the method's (layered for every learned method)."""
     centred_share: float | None = None
     """With --mask-places centred, ordered or layered: how near a region's middle a place lies (a share of the
     best-filled footprint; default 0.9, docs/planner.md)."""
@@ -156,7 +156,7 @@ class PlanCmd:
     method's."""
     centre_picks: bool | None = None
     """True / False: move the GCTN's picks to the centres of the block faces under them, or keep its pick
-    pixels (False: the paper's; docs/planner.md); default: the method's."""
+    pixels (False: the paper's; docs/planner.md); default: the method's (True for every learned method)."""
     tie_band: float | None = None
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default: the method's, tvf-small 0.002, tvf-large 0; 0: the paper's; 0.001 is about a fifteenth of

@@ -1,6 +1,6 @@
 """A goal-difference mask on the GCTN's maps: pick only where the scene stands above the goal, place only
-where the goal stands above the scene (``--goal-mask``; the default of ``gctn`` and ``tvf-small``;
-``--goal-mask False`` is the paper's unmasked GCTN).
+where the goal stands above the scene (``--goal-mask``; the default of every learned method, with the
+``layered`` places; ``--goal-mask False`` is the paper's unmasked GCTN).
 
 Both images are top-down height maps of the same workspace, so a block that sits where the goal has it
 already is not worth moving, and a place where the goal has nothing more than the scene is not worth
@@ -122,31 +122,82 @@ def seams_closed(image: torch.Tensor) -> torch.Tensor:
     """``image`` (B, 4, H, W) with the height channel's narrow dips closed (a grey closing over
     :data:`SEAM_PX`): the fused height map shows the 1 cm seam between two goal blocks as a lower height,
     which read pixel by pixel is a place one block finishes."""
-    pad = SEAM_PX // 2
-    dilated = F.max_pool2d(image[:, 3:4], SEAM_PX, stride=1, padding=pad)
-    closed = -F.max_pool2d(-dilated, SEAM_PX, stride=1, padding=pad)
+    closed = -_square_max(-_square_max(image[:, 3:4], SEAM_PX), SEAM_PX)
     return torch.cat([image[:, :3], closed], dim=1)
 
 
+def _square_max(height: torch.Tensor, size: int) -> torch.Tensor:
+    """The largest value of ``height`` (B, 1, H, W) in the ``size`` square around each pixel: a max-pool
+    down the columns, then along the rows (exact, cheaper than one square max-pool)."""
+    pad = size // 2
+    down = F.max_pool2d(height, (size, 1), stride=1, padding=(pad, 0))
+    return F.max_pool2d(down, (1, size), stride=1, padding=(0, pad))
+
+
 @functools.cache
-def _disc_rows(diameter: int) -> tuple[tuple[int, int], ...]:
-    """(height, width) of rectangles whose union is the disc of :func:`_disc`, one per distinct width
-    (derived once per diameter: the landing height reads them at every call of the mask)."""
+def _disc_half_widths(diameter: int) -> tuple[int, ...]:
+    """Half the width (pixels either side of the middle) of each row of the disc of :func:`_disc`, top to
+    bottom (derived once per diameter: the landing height reads them at every call of the mask)."""
     inside = _disc(diameter)[0, 0] > 0
-    widths = inside.sum(dim=1)  # a row's width; rows grow to the middle one
-    centre = diameter // 2
-    tallest = {int(widths[r]): 2 * (r - centre) + 1 for r in range(centre, diameter)}  # width -> rows
-    return tuple(sorted((height, width) for width, height in tallest.items()))
+    return tuple(int(width) // 2 for width in inside.sum(dim=1))
 
 
 def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
     """The largest value (B, H, W) of ``height`` (B, H, W) in the disc of ``diameter`` around each pixel
-    (exact: the disc is a union of rectangles, one max-pool each)."""
-    stack = [
-        F.max_pool2d(height[:, None], (h, w), stride=1, padding=(h // 2, w // 2))[:, 0]
-        for h, w in _disc_rows(diameter)
-    ]
-    return torch.stack(stack).max(dim=0).values
+    (-inf outside the image): running maxima along each row, widened one pixel either side at a time, then
+    the largest over the disc's rows of the maximum of that row's width (exact; a few elementwise maxima
+    instead of one max-pool per rectangle)."""
+    reach = diameter // 2
+    halves = _disc_half_widths(diameter)
+    width, rows = height.shape[-1], height.shape[-2]
+    padded = F.pad(height, (reach, reach), value=-torch.inf)
+    along = {0: height}
+    running = height
+    for half in range(1, max(halves) + 1):
+        sides = torch.maximum(
+            padded[..., reach - half : reach - half + width], padded[..., reach + half : reach + half + width]
+        )
+        running = torch.maximum(running, sides)
+        along[half] = running
+    best = None
+    for row, half in enumerate(halves):
+        shifted = F.pad(along[half], (0, 0, reach, reach), value=-torch.inf)[..., row : row + rows, :]
+        best = shifted if best is None else torch.maximum(best, shifted)
+    return best
+
+
+def _disc_count(mask: torch.Tensor, diameter: int) -> torch.Tensor:
+    """How many pixels of ``mask`` (B, H, W) the disc of ``diameter`` around each pixel holds (B, H, W,
+    int32; zero outside the image): row sums from prefix sums, added over the disc's rows (exact)."""
+    reach = diameter // 2
+    halves = _disc_half_widths(diameter)
+    width, rows = mask.shape[-1], mask.shape[-2]
+    prefix = F.pad(mask.to(torch.int32).cumsum(dim=-1, dtype=torch.int32), (reach + 1, 0))
+    total = prefix[..., -1:].expand(*prefix.shape[:-1], reach)  # past the right edge: the row's total
+    prefix = torch.cat([prefix, total], dim=-1)
+    along = {
+        h: prefix[..., reach + h + 1 : reach + h + 1 + width] - prefix[..., reach - h : reach - h + width]
+        for h in set(halves)
+    }
+    count = torch.zeros_like(mask, dtype=torch.int32)
+    for row, half in enumerate(halves):
+        count += F.pad(along[half], (0, 0, reach, reach))[..., row : row + rows, :]
+    return count
+
+
+def _box_count(mask: torch.Tensor, size: int) -> torch.Tensor:
+    """How many pixels of ``mask`` (B, H, W) the ``size`` × ``size`` square around each pixel holds (B, H,
+    W, int32; zero outside the image), from a summed-area table (exact)."""
+    reach = size // 2
+    rows, width = mask.shape[-2:]
+    table = F.pad(mask.to(torch.int32), (reach + 1, reach, reach + 1, reach))
+    table = table.cumsum(-1, dtype=torch.int32).cumsum(-2, dtype=torch.int32)
+    return (
+        table[..., size : size + rows, size : size + width]
+        - table[..., :rows, size : size + width]
+        - table[..., size : size + rows, :width]
+        + table[..., :rows, :width]
+    )
 
 
 FLUSH_SHARE = 0.9
@@ -162,10 +213,9 @@ def flush_places(places: torch.Tensor, fill: torch.Tensor, share: float = FLUSH_
     ends in, so each block lands on the goal's cell grid: a row's blocks on their cells, not across the
     seam of two; a pyramid's second layer across two blocks of the first, as the goal has it; a
     pallet's first block in a corner, not between its four cells."""
-    region = fill[:, None].float()
-    inside = F.conv2d(region, _disc().gt(0).float().to(region.device), padding=FOOTPRINT_PX // 2)[:, 0]
-    window = 2 * FOOTPRINT_PX - 1
-    around = F.avg_pool2d(region, window, stride=1, padding=window // 2)[:, 0] * window**2
+    inside = _disc_count(fill, FOOTPRINT_PX).float()
+    area = float((2 * FOOTPRINT_PX - 1) ** 2)
+    around = _box_count(fill, 2 * FOOTPRINT_PX - 1).float() / area * area  # a mean pool's rounding: as before
     held = inside / around.clamp(min=1.0)
     best = torch.where(places, held, torch.zeros_like(held)).flatten(1).max(dim=1).values
     return places & (held >= share * best.view(-1, 1, 1))
