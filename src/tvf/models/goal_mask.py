@@ -266,11 +266,8 @@ def centred_places(
     ``share`` of the ``allowed`` pixels of the best-filled footprint among them in its state: the middles
     of the regions to fill rather than their rims (a block placed at a rim half misses its cell)."""
     among = allowed if among is None else among
-    pad = FOOTPRINT_PX // 2
-    if disc:
-        fit = F.conv2d(allowed[:, None].float(), _disc().to(allowed.device), padding=pad)[:, 0]
-    else:
-        fit = F.avg_pool2d(allowed[:, None].float(), FOOTPRINT_PX, stride=1, padding=pad)[:, 0]
+    count = _disc_count if disc else _box_count
+    fit = count(allowed, FOOTPRINT_PX).float()  # whole pixels: a share of the best exactly, ties kept
     best = torch.where(among, fit, torch.zeros_like(fit)).flatten(1).max(dim=1).values.view(-1, 1, 1)
     return among & (fit >= share * best)
 

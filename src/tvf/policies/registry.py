@@ -185,8 +185,8 @@ METHODS: dict[str, Method] = {
         # from the height maps"); the paper's is --refine-yaw False
         # every learned method: the mask's layered places (a layer filled from its ends and corners in) and
         # picks at the centres of the block faces, adopted by a registered rule on validation seeds
-        # (docs/results.md, "Layered places, second round"); the paper's is --mask-places gap
-        # --centre-picks False (docs/deviations.md)
+        # (docs/results.md, "Layered places, second round"); the former defaults are --mask-places gap
+        # --centre-picks False, the paper's --goal-mask False --centre-picks False (docs/deviations.md)
         Method(
             "gctn",
             "GCTN",
@@ -218,7 +218,7 @@ METHODS: dict[str, Method] = {
         # and the refinement together"); its first actions from a lower threshold (three distinct root
         # proposals in 96.7 % of decisions; docs/results.md, "Distinct first actions"); the paper's rule
         # is --proposals kmeans --pick-branches 1 --turns 1 --goal-mask False --refine-yaw False
-        # --root-alpha 0.01
+        # --root-alpha 0.01 --centre-picks False
         Method(
             "tvf-large",
             "TVF-L",
