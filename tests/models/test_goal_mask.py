@@ -332,3 +332,14 @@ def test_the_middle_of_a_turned_row_is_found_between_its_placed_neighbours() -> 
     layered = place_allowed(ends, goal, rule="layered")[0]
     rows, cols = torch.nonzero(layered, as_tuple=True)
     assert layered[80, 80] and (rows - 80).abs().max() <= 2 and (cols - 80).abs().max() <= 2
+
+
+def test_a_footprint_holding_exactly_the_share_of_the_best_is_centred() -> None:
+    allowed = torch.zeros(1, 40, 40, dtype=torch.bool)
+    allowed[0, 10:14, 15:25] = True  # 4 x 10 pixels: a footprint over all of it holds 40
+    among = torch.zeros_like(allowed)
+    among[0, 12, 20] = among[0, 17, 20] = True  # the second's footprint holds 3 of the 4 rows: 30
+    assert torch.equal(centred_places(allowed, 0.75, among), among)  # 30 is 0.75 of 40: kept
+    assert centred_places(allowed, 0.76, among).sum() == 1
+    assert torch.equal(centred_places(allowed, 0.6, among, disc=True), among)  # the disc: 24 of 40
+    assert centred_places(allowed, 0.61, among, disc=True).sum() == 1
