@@ -172,6 +172,14 @@ def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
+IMAGE_RULES = {"goal_mask": True, "refine_yaw": True, "mask_places": "layered", "centre_picks": True}
+"""What every learned method reads from the two height maps besides its networks, each chosen on
+validation seeds (docs/results.md): the GCTN's maps masked by the height difference to the goal ("A
+goal-difference mask"), its places kept to the lowest layer still to fill, filled from its ends and
+corners in, and its picks moved to the centres of the block faces ("Layered places, second round"), the
+place turns corrected to the block yaws read from the maps ("Turns read from the height maps"). The
+paper's: --goal-mask False --refine-yaw False --centre-picks False (docs/deviations.md P12-P14, P18)."""
+
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
@@ -179,25 +187,7 @@ METHODS: dict[str, Method] = {
         # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
         # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
         # (docs/results.md); the paper's is --turns 1
-        # GCTN and TVF-S: the GCTN's maps masked by the height difference to the goal (docs/results.md,
-        # "A goal-difference mask"; TVF-L did not gain from it); the paper's is --goal-mask False
-        # GCTN and TVF-S: their place turns corrected from the height maps (docs/results.md, "Turns read
-        # from the height maps"); the paper's is --refine-yaw False
-        # every learned method: the mask's layered places (a layer filled from its ends and corners in) and
-        # picks at the centres of the block faces, adopted by a registered rule on validation seeds
-        # (docs/results.md, "Layered places, second round"); the former defaults are --mask-places gap
-        # --centre-picks False, the paper's --goal-mask False --centre-picks False (docs/deviations.md)
-        Method(
-            "gctn",
-            "GCTN",
-            _gctn,
-            models=("gctn",),
-            turns=4,
-            goal_mask=True,
-            refine_yaw=True,
-            mask_places="layered",
-            centre_picks=True,
-        ),
+        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, **IMAGE_RULES),
         # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
         # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
         # paper's rule is --tie-band 0
@@ -208,17 +198,12 @@ METHODS: dict[str, Method] = {
             ("gctn", "vf"),
             PlannerConfig(k=2, depth=1, turns_depth=1, tie_band=0.002),
             turns=4,
-            goal_mask=True,
-            refine_yaw=True,
-            mask_places="layered",
-            centre_picks=True,
+            **IMAGE_RULES,
         ),
-        # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md);
-        # masked and refined together (either alone did not gain; docs/results.md, "TVF-L with the mask
-        # and the refinement together"); its first actions from a lower threshold (three distinct root
-        # proposals in 96.7 % of decisions; docs/results.md, "Distinct first actions"); the paper's rule
-        # is --proposals kmeans --pick-branches 1 --turns 1 --goal-mask False --refine-yaw False
-        # --root-alpha 0.01 --centre-picks False
+        # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md); its
+        # first actions from a lower threshold (three distinct root proposals in 96.7 % of decisions;
+        # docs/results.md, "Distinct first actions"); the paper's rule is --proposals kmeans
+        # --pick-branches 1 --turns 1 --root-alpha 0.01 with IMAGE_RULES' paper flags
         Method(
             "tvf-large",
             "TVF-L",
@@ -226,10 +211,7 @@ METHODS: dict[str, Method] = {
             ("gctn", "vf"),
             PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1, root_alpha=0.001),
             turns=8,
-            goal_mask=True,
-            refine_yaw=True,
-            mask_places="layered",
-            centre_picks=True,
+            **IMAGE_RULES,
         ),
     )
 }
