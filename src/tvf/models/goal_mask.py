@@ -149,7 +149,7 @@ def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
     instead of one max-pool per rectangle)."""
     reach = diameter // 2
     halves = _disc_half_widths(diameter)
-    width, rows = height.shape[-1], height.shape[-2]
+    width = height.shape[-1]
     padded = F.pad(height, (reach, reach), value=-torch.inf)
     along = {0: height}
     running = height
@@ -159,11 +159,19 @@ def _disc_max(height: torch.Tensor, diameter: int) -> torch.Tensor:
         )
         running = torch.maximum(running, sides)
         along[half] = running
-    best = None
+    return _over_disc_rows(along, halves, torch.maximum, -torch.inf)
+
+
+def _over_disc_rows(along: dict, halves: tuple[int, ...], combine, outside: float) -> torch.Tensor:
+    """``combine`` (max or sum), over the rows of a disc with half widths ``halves``, of the row results
+    ``along[half]`` (B, H, W: each pixel's value over ``half`` pixels either side), each shifted to its
+    row; rows beyond the image read ``outside``."""
+    reach, rows = len(halves) // 2, along[halves[0]].shape[-2]
+    result = None
     for row, half in enumerate(halves):
-        shifted = F.pad(along[half], (0, 0, reach, reach), value=-torch.inf)[..., row : row + rows, :]
-        best = shifted if best is None else torch.maximum(best, shifted)
-    return best
+        shifted = F.pad(along[half], (0, 0, reach, reach), value=outside)[..., row : row + rows, :]
+        result = shifted if result is None else combine(result, shifted)
+    return result
 
 
 def _disc_count(mask: torch.Tensor, diameter: int) -> torch.Tensor:
@@ -171,18 +179,16 @@ def _disc_count(mask: torch.Tensor, diameter: int) -> torch.Tensor:
     int32; zero outside the image): row sums from prefix sums, added over the disc's rows (exact)."""
     reach = diameter // 2
     halves = _disc_half_widths(diameter)
-    width, rows = mask.shape[-1], mask.shape[-2]
+    width = mask.shape[-1]
     prefix = F.pad(mask.to(torch.int32).cumsum(dim=-1, dtype=torch.int32), (reach + 1, 0))
     total = prefix[..., -1:].expand(*prefix.shape[:-1], reach)  # past the right edge: the row's total
     prefix = torch.cat([prefix, total], dim=-1)
     along = {
-        h: prefix[..., reach + h + 1 : reach + h + 1 + width] - prefix[..., reach - h : reach - h + width]
-        for h in set(halves)
+        half: prefix[..., reach + half + 1 : reach + half + 1 + width]
+        - prefix[..., reach - half : reach - half + width]
+        for half in set(halves)
     }
-    count = torch.zeros_like(mask, dtype=torch.int32)
-    for row, half in enumerate(halves):
-        count += F.pad(along[half], (0, 0, reach, reach))[..., row : row + rows, :]
-    return count
+    return _over_disc_rows(along, halves, torch.add, 0)
 
 
 def _box_count(mask: torch.Tensor, size: int) -> torch.Tensor:
