@@ -26,14 +26,16 @@ Pure NumPy/SciPy: no renderer, no torch.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
 from scipy import ndimage
 
-from tvf.geometry import WORKSPACE, Workspace, world_to_pixel
+from tvf.errors import TvfError
+from tvf.geometry import WORKSPACE, Workspace, rotation_matrix, world_to_pixel
 
 #: Points this far below the table (z_min) still count as table (depth noise is a few micrometres).
 Z_TOLERANCE = 0.002
@@ -44,6 +46,16 @@ BACKGROUND_TOLERANCE = 0.005
 #: Fixed-point steps and the residual (normalised image units) of the distortion inversion.
 UNDISTORT_STEPS = 100
 UNDISTORT_TOLERANCE = 1e-10
+#: Table levelling: points within this (m) of the table height are candidates for the table plane.
+LEVEL_BAND = 0.02
+#: Table levelling: the cap (m) on a point's distance in a plane's score (about 2 sigma of the D415's noise).
+LEVEL_INLIER = 0.002
+#: Table levelling: the least-squares refinement fits the points within this (m) of the plane.
+LEVEL_REFINE = 0.003
+#: Table levelling: planes through three random candidates, and how many candidates score them.
+LEVEL_HYPOTHESES, LEVEL_SAMPLE = 64, 20_000
+#: Table levelling: fewest table points a fit accepts (a camera sees tens of thousands).
+LEVEL_MIN_POINTS = 2000
 
 View = tuple[np.ndarray, np.ndarray]
 """One view: colour uint8 (H, W, 3) and depth (H, W) in metres along the optical axis."""
@@ -309,6 +321,89 @@ def fill_holes(
     if mode not in HOLE_FILLS:
         raise ValueError(f"unknown hole filling {mode!r}; choose one of {', '.join(HOLE_FILLS)}")
     return HOLE_FILLS[mode](color, height, covered)
+
+
+# --------------------------------------------------------------------------------------------
+# Levelling a camera on the table
+
+
+class TableLevelError(TvfError):
+    """Too few table points in a view to level its camera."""
+
+
+def table_plane(
+    depth: np.ndarray, camera: PinholeCamera, workspace: Workspace = WORKSPACE
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The table as ``camera`` sees it: its unit normal (z up) and a point on it (base frame, m).
+
+    The candidates are the points inside the workspace's x-y bounds within :data:`LEVEL_BAND` of the
+    table height ``workspace.z_min``. Of :data:`LEVEL_HYPOTHESES` planes through three of them, the one
+    they fit best is the table, not the base's top 5 mm above it nor a plane between the two (RANSAC
+    with MSAC's score, :func:`_most_supported_plane`; a fixed seed: the fit is a function of the image); a
+    least-squares fit of ``z = a x + b y + c`` to the points within :data:`LEVEL_REFINE` of it, repeated once
+    on the new fit's, refines it.
+    """
+    x, y, z = _depth_to_xyz(depth, camera)
+    inside = (x >= workspace.x_min) & (x < workspace.x_max) & (y >= workspace.y_min) & (y < workspace.y_max)
+    near = inside & (np.abs(z - workspace.z_min) < LEVEL_BAND)  # NaN (no reading) fails every comparison
+    _require_table_points(camera, int(near.sum()), LEVEL_BAND)
+    centre = np.array([*workspace.center, workspace.z_min])
+    points = np.stack([x[near], y[near], z[near]], axis=1) - centre
+    normal, offset = _most_supported_plane(points, np.random.default_rng(0))
+    for _ in range(2):
+        on = np.abs(points @ normal - offset) < LEVEL_REFINE
+        _require_table_points(camera, int(on.sum()), LEVEL_REFINE)
+        A = np.stack([points[on, 0], points[on, 1], np.ones(int(on.sum()))], axis=1)
+        a, b, c = np.linalg.lstsq(A, points[on, 2], rcond=None)[0]
+        normal = np.array([-a, -b, 1.0]) / math.hypot(a, b, 1.0)
+        offset = c * normal[2]
+    return normal, centre + [0.0, 0.0, offset / normal[2]]
+
+
+def _most_supported_plane(points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Of planes through random triples of ``points``, the (unit normal, offset) the points fit best: the
+    least sum of squared distances, each capped at :data:`LEVEL_INLIER` (MSAC's score, which a plane
+    tilted to pass near both the table and the base's top loses to the table, unlike a count of points
+    within the band)."""
+    sample = points[rng.choice(len(points), min(len(points), LEVEL_SAMPLE), replace=False)]
+    p0, p1, p2 = (sample[rng.integers(0, len(sample), LEVEL_HYPOTHESES)] for _ in range(3))
+    normals = np.cross(p1 - p0, p2 - p0)
+    normals *= np.sign(normals[:, 2:3]) + (normals[:, 2:3] == 0)  # z up
+    length = np.linalg.norm(normals, axis=1)
+    valid = length > 1e-9  # not three points on a line
+    normals[valid] /= length[valid, None]
+    offsets = np.einsum("hk,hk->h", normals, p0)
+    cost = np.minimum(np.square(sample @ normals.T - offsets), LEVEL_INLIER**2).sum(axis=0)
+    best = int(np.argmin(np.where(valid, cost, np.inf)))
+    return normals[best], float(offsets[best])
+
+
+def _require_table_points(camera: PinholeCamera, count: int, band: float) -> None:
+    if count < LEVEL_MIN_POINTS:
+        raise TableLevelError(
+            f"camera {camera.name!r}: {count} points lie within {band * 1000:.0f} mm of the table plane, "
+            f"fewer than {LEVEL_MIN_POINTS}; level only cameras that see the bare table inside the "
+            "workspace, with a pose good to about 1 cm"
+        )  # fmt: skip
+
+
+def level_on_table(
+    depth: np.ndarray, camera: PinholeCamera, workspace: Workspace = WORKSPACE
+) -> PinholeCamera:  # fmt: skip
+    """``camera`` with its pose corrected so the table it sees is level at ``workspace.z_min``.
+
+    Turns the camera about its optical centre by the smallest rotation that makes the fitted table
+    (:func:`table_plane`) horizontal, then moves it up or down to put the table at the table height: this
+    corrects the two tilts and the height of a slightly wrong calibration. The turn about the vertical and
+    the shift along the table are invisible in a plane and stay as they were (docs/real-robot.md).
+    """
+    normal, point = table_plane(depth, camera, workspace)
+    axis = np.cross(normal, [0.0, 0.0, 1.0])  # |axis| = sin(angle between the normal and up)
+    angle = float(np.arctan2(np.linalg.norm(axis), normal[2]))
+    turn = rotation_matrix(axis / np.linalg.norm(axis) * angle) if angle > 0 else np.eye(3)
+    origin = np.asarray(camera.position)
+    lift = workspace.z_min - origin[2] - float(normal @ (point - origin))
+    return replace(camera, rotation=turn @ np.asarray(camera.rotation), position=origin + [0.0, 0.0, lift])
 
 
 def fuse(

@@ -133,6 +133,17 @@ def bin_to_yaw(index: np.ndarray | int, n_rotations: int) -> np.ndarray:
     return wrap_angle(np.asarray(index, dtype=np.float64) * (2 * math.pi / n_rotations))
 
 
+def rotation_matrix(rotvec: np.ndarray | tuple[float, float, float]) -> np.ndarray:
+    """The 3 x 3 rotation of angle ``|rotvec|`` (radians) about the axis ``rotvec`` (Rodrigues' formula)."""
+    v = np.asarray(rotvec, dtype=np.float64)
+    angle = float(np.linalg.norm(v))
+    if angle == 0.0:
+        return np.eye(3)
+    k = v / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+
+
 def rotate_xy(xy: np.ndarray, yaw: np.ndarray | float) -> np.ndarray:
     """Rotate world vectors ``(..., 2)`` counter-clockwise by ``yaw``."""
     xy = np.asarray(xy, dtype=np.float64)

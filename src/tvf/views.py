@@ -33,7 +33,16 @@ import numpy as np
 import yaml
 
 from tvf.errors import TvfError
-from tvf.fusion import HOLE_FILLS, PinholeCamera, View, fill_holes, fuse_with_coverage, pixel_rays
+from tvf.fusion import (
+    HOLE_FILLS,
+    PinholeCamera,
+    TableLevelError,
+    View,
+    fill_holes,
+    fuse_with_coverage,
+    level_on_table,
+    pixel_rays,
+)
 from tvf.geometry import WORKSPACE, Workspace
 from tvf.io import atomic_write_bytes
 
@@ -86,6 +95,9 @@ class Rgbh:
     """The fraction of pixels some view measured (the rest is filled by ``hole_fill``)."""
     hole_fill: str | None = None
     """How the holes were filled (:data:`tvf.fusion.HOLE_FILLS`); None for a saved RGB-H image."""
+    levelling: tuple[dict, ...] = ()
+    """With table levelling, per camera: its name, the tilt (degrees) and the lift (mm) the levelling
+    gave its pose (:func:`level_correction`); empty without."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -411,14 +423,35 @@ def resolve_hole_fill(mode: str, n_views: int) -> str:
     return mode
 
 
+def level_correction(before: PinholeCamera, after: PinholeCamera) -> dict:
+    """How much table levelling moved a camera: its name, the angle (degrees) between the two
+    orientations and the lift (mm) of its position."""
+    cos = (np.trace(np.asarray(after.rotation) @ np.asarray(before.rotation).T) - 1.0) / 2.0
+    return {"camera": before.name, "tilt_deg": round(math.degrees(math.acos(min(1.0, cos))), 4),
+            "lift_mm": round(1000.0 * (after.position[2] - before.position[2]), 3)}  # fmt: skip
+
+
+def level_cameras(views: Sequence[ViewFiles], workspace: Workspace, source: Path) -> list[PinholeCamera]:
+    """Each view's camera levelled on the table it sees (:func:`tvf.fusion.level_on_table`)."""
+    try:
+        return [level_on_table(v.depth, v.camera, workspace) for v in views]
+    except TableLevelError as exc:
+        raise TvfError(f"{source}: {exc}") from None
+
+
 def fuse_views(
-    views: Sequence[ViewFiles], workspace: Workspace, source: Path, hole_fill: str = "auto"
+    views: Sequence[ViewFiles], workspace: Workspace, source: Path, hole_fill: str = "auto",
+    level_table: bool = False,
 ) -> Rgbh:  # fmt: skip
     """The views fused into the top-down image by :mod:`tvf.fusion`, holes filled by ``hole_fill``
-    (:func:`resolve_hole_fill`; ``auto`` fills them as the simulator does)."""
+    (:func:`resolve_hole_fill`; ``auto`` fills them as the simulator does); with ``level_table``, each
+    camera is first levelled on the table it sees (tilt and height of its pose corrected)."""
     fill = resolve_hole_fill(hole_fill, len(views))
-    color, height, covered = fuse_with_coverage([(v.color, v.depth) for v in views],
-                                                [v.camera for v in views], workspace)  # fmt: skip
+    cameras = level_cameras(views, workspace, source) if level_table else [v.camera for v in views]
+    levelling = tuple(
+        level_correction(v.camera, c) for v, c in zip(views, cameras, strict=True) if level_table
+    )
+    color, height, covered = fuse_with_coverage([(v.color, v.depth) for v in views], cameras, workspace)
     if not covered.any():
         ws = workspace
         raise TvfError(
@@ -427,7 +460,7 @@ def fuse_views(
             "optical frame in the robot base frame), depth_scale and workspace.yaml"
         )
     color, height = fill_holes(color, height, covered, fill)
-    return Rgbh(color, height, source, len(views), float(covered.mean()), fill)
+    return Rgbh(color, height, source, len(views), float(covered.mean()), fill, levelling)
 
 
 def read_rgbh(path: str | Path, workspace: Workspace = WORKSPACE) -> Rgbh:
@@ -455,12 +488,14 @@ def read_rgbh(path: str | Path, workspace: Workspace = WORKSPACE) -> Rgbh:
     return Rgbh(color, height.astype(np.float32), path)
 
 
-def load_rgbh(path: str | Path, workspace: Workspace, flag: str, hole_fill: str = "auto") -> Rgbh:
-    """The top-down image of a views folder (fused, holes filled by ``hole_fill``) or of a saved ``.npz``
-    RGB-H image."""
+def load_rgbh(
+    path: str | Path, workspace: Workspace, flag: str, hole_fill: str = "auto", level_table: bool = False
+) -> Rgbh:  # fmt: skip
+    """The top-down image of a views folder (fused, holes filled by ``hole_fill``, cameras levelled on
+    the table with ``level_table``) or of a saved ``.npz`` RGB-H image (as it is)."""
     path = Path(path)
     if path.is_dir():
-        return fuse_views(read_views(path), workspace, path, hole_fill)
+        return fuse_views(read_views(path), workspace, path, hole_fill, level_table)
     if path.suffix == ".npz" and path.is_file():
         return read_rgbh(path, workspace)
     raise TvfError(f"{flag} {path}: give a folder of views or an .npz RGB-H image (docs/real-robot.md)")

@@ -174,6 +174,49 @@ def test_a_saved_goal_image_and_a_moved_rig_give_the_same_pixels(capsys, rigs, t
     assert code == 2 and "recorded with another workspace" in err and err.count("\n") == 1
 
 
+def tilted_copy(src, dst, degrees: float, lift: float) -> None:
+    """The views folder ``src`` with every camera file's pose turned by ``degrees`` about the base x axis
+    through the camera and lifted by ``lift`` m: a calibration a degree and a few mm off."""
+    from tvf.geometry import rotation_matrix
+
+    dst.mkdir()
+    for path in src.iterdir():
+        (dst / path.name).write_bytes(path.read_bytes())
+    for path in dst.glob("*.yaml"):
+        doc = yaml.safe_load(path.read_text())
+        if "T_base_camera" in doc:
+            T = np.asarray(doc["T_base_camera"], dtype=float)
+            T[:3, :3] = rotation_matrix([np.radians(degrees), 0.0, 0.0]) @ T[:3, :3]
+            T[2, 3] += lift
+            doc["T_base_camera"] = T.tolist()
+            path.write_text(yaml.safe_dump(doc))
+
+
+def test_levelling_on_the_table_undoes_a_tilted_calibration(capsys, rigs, tmp_path):
+    folder = rigs["put-t"]
+    _, height = simulator_images(folder, "initial")
+    for name, views in (("scene", "scene"), ("goal", "goal")):
+        tilted_copy(folder / "rig" / views, tmp_path / name, degrees=1.0, lift=0.005)
+    off = load_rgbh(tmp_path / "scene", WORKSPACE, "--views")
+    levelled = load_rgbh(tmp_path / "scene", WORKSPACE, "--views", level_table=True)
+    assert np.abs(off.height - height).mean() > 0.003  # measured: about 6 mm
+    assert np.abs(levelled.height - height).mean() < 0.001
+    assert [c["camera"] for c in levelled.levelling] == ["front", "left", "right"] and not off.levelling
+    corrections = levelled.levelling
+    assert all(c["lift_mm"] < -3 and 0.5 < c["tilt_deg"] < 1.5 for c in corrections), corrections
+    code, _, err = run(capsys, "plan", "--method", "gctn", "--views", str(tmp_path / "scene"), "--goal",
+                       str(tmp_path / "goal"), "--level-table", "--out", str(tmp_path / "out"))  # fmt: skip
+    assert code == 0, err
+    record = json.loads((tmp_path / "out" / "decision.json").read_text())
+    want = simulator_decision(folder).place_pixel  # within a pixel: the depth files hold whole mm
+    assert np.abs(np.subtract(record["place"]["pixel"], want)).max() <= 1, (record["place"], want)
+    assert len(record["scene"]["levelling"]) == 3 and len(record["goal"]["levelling"]) == 3
+    tilted_copy(folder / "rig" / "scene", tmp_path / "high", degrees=0.0, lift=0.5)  # sees no table
+    code, _, err = run(capsys, "plan", "--method", "gctn", "--views", str(tmp_path / "high"), "--goal",
+                       str(folder / "goal.npz"), "--level-table", "--out", str(tmp_path / "o2"))  # fmt: skip
+    assert code == 2 and "high: camera" in err and "of the table plane" in err and err.count("\n") == 1
+
+
 def test_actions_outside_the_reach_and_unusable_workspaces_are_refused(capsys, rigs, tmp_path):
     folder = rigs["stack-tower"]
     far = tmp_path / "far.yaml"

@@ -1,13 +1,14 @@
 """The depth-camera model on synthetic images: noise level, seeding, dropout at silhouettes, quantisation,
 calibration errors and bad configurations (no rendering)."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from tvf.errors import TvfError
-from tvf.fusion import PinholeCamera, fuse_with_coverage
+from tvf.fusion import PinholeCamera, TableLevelError, fuse_with_coverage, level_on_table, table_plane
 from tvf.sim.sensors import (
     SENSORS,
     SensorConfig,
@@ -155,6 +156,64 @@ def test_calibration_errors_have_the_configured_size_and_draw_rule():
     assert np.degrees(angle) == pytest.approx(1.0, rel=1e-6)
 
 
+# ---------------------------------------------------------------------------- table levelling
+
+
+def angle_between(a: PinholeCamera, b: PinholeCamera) -> float:
+    """Degrees between two cameras' orientations."""
+    cos = (np.trace(np.asarray(a.rotation) @ np.asarray(b.rotation).T) - 1) / 2
+    return math.degrees(math.acos(min(1.0, cos)))
+
+
+def test_levelling_undoes_a_tilt_and_a_height_error_exactly():
+    cam = nadir()
+    believed = perturb_camera(cam, (0.0, 0.0, 0.004), (math.radians(0.8), math.radians(-0.6), 0.0))
+    depth = block_scene(cam)  # the world renders from the true pose; the block is 2.5 % of the points
+    normal, _ = table_plane(depth, believed)
+    assert math.degrees(math.acos(normal[2])) == pytest.approx(1.0, abs=1e-3)  # the believed table tilts
+    levelled = level_on_table(depth, believed)
+    assert angle_between(levelled, cam) < 1e-6 and np.allclose(levelled.position, cam.position, atol=1e-7)
+    assert np.abs(fused_height(cam, levelled) - fused_height(cam, cam)).max() < 1e-5
+
+
+def test_levelling_keeps_what_a_plane_cannot_see():
+    cam = nadir()
+    believed = perturb_camera(cam, (0.002, -0.001, 0.0), (0.0, 0.0, math.radians(1.0)))  # shift and yaw
+    levelled = level_on_table(block_scene(cam), believed)
+    assert angle_between(levelled, believed) < 1e-6 and np.allclose(levelled.position, believed.position)
+
+
+def test_levelling_leaves_the_base_top_out_of_the_fit():
+    cam = nadir()
+    depth = block_scene(cam)
+    u = (np.arange(cam.width) - cam.cx) / cam.fx
+    depth[:, u * cam.position[2] + cam.position[0] > 0.6] = cam.position[2] - 0.005  # a 5 mm base, x > 0.6
+    believed = perturb_camera(cam, (0.0, 0.0, 0.003), (0.0, math.radians(0.5), 0.0))
+    levelled = level_on_table(depth, believed)
+    assert angle_between(levelled, cam) < 1e-3 and levelled.position[2] == pytest.approx(1.0, abs=1e-5)
+
+
+def test_a_camera_that_sees_no_table_is_a_one_line_error():
+    cam = nadir()
+    with pytest.raises(TableLevelError, match="points lie within 20 mm of the table plane") as err:
+        level_on_table(flat(0.5, (cam.height, cam.width)), cam)  # a surface 50 cm above the table
+    assert "\n" not in str(err.value) and "nadir" in str(err.value)
+
+
+def test_the_levelled_preset_levels_the_miscalibrated_camera():
+    cfg = SENSORS["d415-one-calib-level"]
+    assert cfg.level_table and not cfg.ideal and replace_level(cfg, False) == SENSORS["d415-one-calib"]
+    cam = nadir()
+    depth = block_scene(cam)
+    _, (calib,) = SENSORS["d415-one-calib"].apply([(RGB, depth)], [cam], seed=5, step=0, stream=0)
+    _, (levelled,) = cfg.apply([(RGB, depth)], [cam], seed=5, step=0, stream=0)
+    assert angle_between(calib, cam) > 0.99 and angle_between(levelled, cam) < angle_between(calib, cam)
+
+
+def replace_level(cfg: SensorConfig, level: bool) -> SensorConfig:
+    return dataclasses.replace(cfg, name="d415-one-calib", level_table=level)
+
+
 # ---------------------------------------------------------------------------- bad configurations
 
 
@@ -168,6 +227,7 @@ def test_calibration_errors_have_the_configured_size_and_draw_rule():
         ({"edge_width": 0}, "edge_width must be an integer >= 1"),
         ({"calib_draw": "sometimes"}, "calib_draw must be 'episode' or 'fixed'"),
         ({"hole_fill": "blur"}, "hole_fill must be one of nearest, background, not 'blur'"),
+        ({"level_table": "yes"}, "level_table must be true or false, not 'yes'"),
     ],
 )
 def test_bad_values_are_one_line_errors(kwargs, words):

@@ -80,8 +80,11 @@ def pose_record(pose: np.ndarray, pixel: tuple[int, int]) -> dict:
 
 
 def image_record(image) -> dict:
-    return {"path": str(image.source), "views": image.n_views, "coverage": round(image.coverage, 6),
-            "hole_fill": image.hole_fill}  # fmt: skip
+    record = {"path": str(image.source), "views": image.n_views, "coverage": round(image.coverage, 6),
+              "hole_fill": image.hole_fill}  # fmt: skip
+    if image.levelling:
+        record["levelling"] = list(image.levelling)
+    return record
 
 
 def decision_record(decision, poses: np.ndarray, method: str, scene, goal, ws: Workspace) -> dict:
@@ -165,6 +168,11 @@ class PlanCmd:
     """auto | nearest | background: how pixels no camera measured are filled. nearest: the nearest
     measured pixel's values; background: the lowest surface on the hole's rim (what a camera's occlusion
     shadow hides); auto: background with one camera, nearest with more (as the simulator)."""
+    level_table: bool = False
+    """Before fusing, level each camera on the table it sees: a plane fit of the table points corrects
+    the tilt and height of a slightly wrong T_base_camera (a degree, a centimetre; not its turn about the
+    vertical nor its shift along the table). decision.json records each camera's correction, so a large
+    one tells you to calibrate again (docs/real-robot.md)."""
     device: str = "auto"
     """auto | cpu | cuda: where the models run."""
 
@@ -198,8 +206,8 @@ class PlanCmd:
         ws = self.resolve_workspace()
         check_grid(ws, str(self.workspace or self.views))
         self.check_goal_workspace(ws)
-        scene = load_rgbh(self.views, ws, "--views", self.hole_fill)
-        goal = load_rgbh(self.goal, ws, "--goal", self.hole_fill)
+        scene = load_rgbh(self.views, ws, "--views", self.hole_fill, self.level_table)
+        goal = load_rgbh(self.goal, ws, "--goal", self.hole_fill, self.level_table)
         search = {} if self.tie_band is None else {"tie_band": self.tie_band}
         planner = load_planner(self.method, gctn=_path(self.gctn), vf=_path(self.vf), device=self.device,
                                keep_images=True, turns=self.turns, goal_mask=self.goal_mask,

@@ -61,5 +61,7 @@ D415_ONE = SimEnvFactory(sensor="d415-one")
 """One D415-like camera: the paper's real set-up."""
 D415_ONE_CALIB = SimEnvFactory(sensor="d415-one-calib")
 """One D415-like camera whose pose is off by 3 mm and 1 degree (drawn per episode)."""
+D415_ONE_CALIB_LEVEL = SimEnvFactory(sensor="d415-one-calib-level")
+"""That miscalibrated camera, levelled on the table before each fusion (tilt and height corrected)."""
 D435_ONE = SimEnvFactory(sensor="d435-one")
 """One camera with the D435's noise (2.5 times the D415's)."""

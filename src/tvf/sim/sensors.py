@@ -14,6 +14,9 @@ rendered view and before the fusion (:mod:`tvf.fusion`), as on a real robot:
   ``calib_translation`` metres in a random direction, rotation of ``calib_rotation_deg`` about a random
   axis through the camera's centre) while the world renders from the true one. ``calib_draw = "episode"``
   draws a new error per episode; ``"fixed"`` draws it once, the same for every episode (one rig's error);
+* **table levelling** (``level_table``): before each fusion, every camera's believed pose is corrected so
+  the table it sees is level at the table height (:func:`tvf.fusion.level_on_table`), which undoes the
+  tilt and height of a calibration error but not its turn about the vertical or its shift along the table;
 * **the hole filling** of the fusion (``hole_fill``): ``nearest`` for three cameras, ``background`` for
   one, whose occlusion shadows hide the surface behind each block (:func:`tvf.fusion.fill_background`).
 
@@ -42,7 +45,8 @@ import numpy as np
 from scipy import ndimage
 
 from tvf.errors import TvfError
-from tvf.fusion import HOLE_FILLS, PinholeCamera, View
+from tvf.fusion import HOLE_FILLS, PinholeCamera, View, level_on_table
+from tvf.geometry import rotation_matrix
 from tvf.sim.camera import RIGS, Rig
 
 OBSERVATION, GOAL, CALIBRATION = 0, 1, 2
@@ -86,6 +90,9 @@ class SensorConfig:
     """Angle (degrees) of each camera's orientation error, about a random axis."""
     calib_draw: Literal["episode", "fixed"] = "episode"
     """``episode``: a new calibration error per episode seed; ``fixed``: the same error in every episode."""
+    level_table: bool = False
+    """Level each camera on the table it sees before the fusion (:func:`tvf.fusion.level_on_table`): a
+    plane fit that corrects a pose's tilt and height, as a real rig can check its calibration each frame."""
     hole_fill: Literal["nearest", "background"] = "nearest"
     """How the fusion fills what no camera measured (:data:`tvf.fusion.HOLE_FILLS`): ``nearest`` (the
     three-camera rig, as the stored datasets were made) or ``background`` (one camera: the lowest surface
@@ -108,6 +115,10 @@ class SensorConfig:
             raise SensorError(
                 f"sensor {self.name!r}: edge_width must be an integer >= 1, not {self.edge_width!r}"
             )
+        if not isinstance(self.level_table, bool):
+            raise SensorError(
+                f"sensor {self.name!r}: level_table must be true or false, not {self.level_table!r}"
+            )
         if self.calib_draw not in ("episode", "fixed"):
             raise SensorError(f"sensor {self.name!r}: calib_draw must be 'episode' or 'fixed', "
                               f"not {self.calib_draw!r}")  # fmt: skip
@@ -128,7 +139,7 @@ class SensorConfig:
     @property
     def ideal(self) -> bool:
         """Perfect cameras (the rig may still be ``one``)."""
-        return not (self.corrupts_views or self.miscalibrated)
+        return not (self.corrupts_views or self.miscalibrated or self.level_table)
 
     def sigma(self, depth: np.ndarray) -> np.ndarray:
         """The depth noise's standard deviation (m) at ``depth`` (m along the optical axis)."""
@@ -148,6 +159,10 @@ class SensorConfig:
                      for i, (rgb, depth) in enumerate(views)]  # fmt: skip
         if self.miscalibrated:
             cameras = calibrated_cameras(cameras, self, seed)
+        if self.level_table:
+            cameras = tuple(
+                level_on_table(depth, cam) for (_, depth), cam in zip(views, cameras, strict=True)
+            )
         return views, cameras
 
 
@@ -207,17 +222,6 @@ def corrupt_view(
 # Calibration
 
 
-def rotation_matrix(rotvec: Sequence[float]) -> np.ndarray:
-    """The rotation of angle ``|rotvec|`` (radians) about ``rotvec`` (Rodrigues' formula)."""
-    v = np.asarray(rotvec, dtype=np.float64)
-    angle = float(np.linalg.norm(v))
-    if angle == 0.0:
-        return np.eye(3)
-    k = v / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
-
-
 def perturb_camera(
     camera: PinholeCamera, translation: Sequence[float], rotvec: Sequence[float]
 ) -> PinholeCamera:
@@ -259,12 +263,14 @@ SENSORS: dict[str, SensorConfig] = {
         SensorConfig("d415", **_D415),
         SensorConfig("d415-one", **_ONE, **_D415),
         SensorConfig("d415-one-calib", **_ONE, **_D415, **_CALIB),
+        SensorConfig("d415-one-calib-level", **_ONE, **_D415, **_CALIB, level_table=True),
         SensorConfig("d435-one", **_ONE, **{**_D415, "sigma_1m": 0.0036}),
     )
 }
 """The named sensors: ``ideal`` (perfect, the default), ``one`` (one perfect camera), ``d415`` (three
 D415-like cameras), ``d415-one`` (one), ``d415-one-calib`` (one, miscalibrated by 3 mm and 1 degree, drawn
-per episode) and ``d435-one`` (one camera with the D435's larger noise)."""
+per episode), ``d415-one-calib-level`` (that camera levelled on the table before each fusion) and ``d435-one``
+(one camera with the D435's larger noise)."""
 
 FIELDS = tuple(f.name for f in fields(SensorConfig))
 
