@@ -6,7 +6,8 @@ the workspace grid of :mod:`tvf.geometry` (floor rule, half-open bounds), and th
 pixel the height is the highest point any view saw; the colour is the mean over the views whose own top
 point reaches that height. :func:`fill_holes` gives pixels no view saw values from measured ones:
 ``nearest`` (the nearest measured pixel's) or ``background`` (the lowest surface on the hole's rim, which
-is what a camera's occlusion shadow hides; the fill for one-camera rigs).
+is what a camera's occlusion shadow hides; the fill for one-camera rigs). :func:`level_on_table` corrects
+a camera's pose on the table it sees before the fusion (the tilt and height of a calibration error).
 
 Camera conventions (those of ROS ``sensor_msgs/CameraInfo`` and REP 103/104 optical frames):
 
@@ -339,7 +340,7 @@ def table_plane(
     The candidates are the points inside the workspace's x-y bounds within :data:`LEVEL_BAND` of the
     table height ``workspace.z_min``. Of :data:`LEVEL_HYPOTHESES` planes through three of them, the one
     they fit best is the table, not the base's top 5 mm above it nor a plane between the two (RANSAC
-    with MSAC's score, :func:`_most_supported_plane`; a fixed seed: the fit is a function of the image); a
+    with MSAC's score, :func:`_best_fitting_plane`; a fixed seed: the fit is a function of the image); a
     least-squares fit of ``z = a x + b y + c`` to the points within :data:`LEVEL_REFINE` of it, repeated once
     on the new fit's, refines it.
     """
@@ -349,7 +350,7 @@ def table_plane(
     _require_table_points(camera, int(near.sum()), LEVEL_BAND)
     centre = np.array([*workspace.center, workspace.z_min])
     points = np.stack([x[near], y[near], z[near]], axis=1) - centre
-    normal, offset = _most_supported_plane(points, np.random.default_rng(0))
+    normal, offset = _best_fitting_plane(points, np.random.default_rng(0))
     for _ in range(2):
         on = np.abs(points @ normal - offset) < LEVEL_REFINE
         _require_table_points(camera, int(on.sum()), LEVEL_REFINE)
@@ -360,7 +361,7 @@ def table_plane(
     return normal, centre + [0.0, 0.0, offset / normal[2]]
 
 
-def _most_supported_plane(points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+def _best_fitting_plane(points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     """Of planes through random triples of ``points``, the (unit normal, offset) the points fit best: the
     least sum of squared distances, each capped at :data:`LEVEL_INLIER` (MSAC's score, which a plane
     tilted to pass near both the table and the base's top loses to the table, unlike a count of points
