@@ -179,7 +179,8 @@ class TvfEnv(gym.Env):
         self, views: list[View], cameras: tuple[PinholeCamera, ...], stream: int
     ) -> tuple[list[View], tuple[PinholeCamera, ...]]:  # fmt: skip
         """The rendered views as this episode's sensor records them at the current step."""
-        return self.sensor.apply(views, cameras, self.seed_value or 0, self.steps, stream)
+        seed = self.seed_value or 0
+        return self.sensor.apply(views, cameras, seed, self.steps, stream, self.world.workspace)
 
     def sensed_views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
         """The current scene's views as the sensor records them (what the observation is fused from)."""

@@ -46,7 +46,7 @@ from scipy import ndimage
 
 from tvf.errors import TvfError
 from tvf.fusion import HOLE_FILLS, PinholeCamera, View, level_on_table
-from tvf.geometry import rotation_matrix
+from tvf.geometry import WORKSPACE, Workspace, rotation_matrix
 from tvf.sim.camera import RIGS, Rig
 
 OBSERVATION, GOAL, CALIBRATION = 0, 1, 2
@@ -146,12 +146,14 @@ class SensorConfig:
         return self.sigma_floor + self.sigma_1m * np.square(depth)
 
     def apply(
-        self, views: Sequence[View], cameras: Sequence[PinholeCamera], seed: int, step: int, stream: int
+        self, views: Sequence[View], cameras: Sequence[PinholeCamera], seed: int, step: int, stream: int,
+        workspace: Workspace = WORKSPACE,
     ) -> tuple[list[View], tuple[PinholeCamera, ...]]:  # fmt: skip
         """The views as this sensor records them and the cameras as the rig believes them to be.
 
         ``seed`` is the episode's, ``step`` the number of actions so far, ``stream`` :data:`OBSERVATION`
-        or :data:`GOAL`. An ideal sensor returns its inputs unchanged.
+        or :data:`GOAL`; ``workspace`` is where ``level_table`` looks for the table. An ideal sensor
+        returns its inputs unchanged.
         """
         views, cameras = list(views), tuple(cameras)
         if self.corrupts_views:
@@ -161,7 +163,7 @@ class SensorConfig:
             cameras = calibrated_cameras(cameras, self, seed)
         if self.level_table:
             cameras = tuple(
-                level_on_table(depth, cam) for (_, depth), cam in zip(views, cameras, strict=True)
+                level_on_table(depth, cam, workspace) for (_, depth), cam in zip(views, cameras, strict=True)
             )
         return views, cameras
 
