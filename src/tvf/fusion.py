@@ -345,8 +345,8 @@ def table_plane(
     on the new fit's, refines it.
     """
     x, y, z = _depth_to_xyz(depth, camera)
-    inside = (x >= workspace.x_min) & (x < workspace.x_max) & (y >= workspace.y_min) & (y < workspace.y_max)
-    near = inside & (np.abs(z - workspace.z_min) < LEVEL_BAND)  # NaN (no reading) fails every comparison
+    near = np.abs(z - workspace.z_min) < LEVEL_BAND  # NaN (no reading) fails every comparison
+    near &= workspace.contains_xy(np.stack([x, y], axis=-1))
     _require_table_points(camera, int(near.sum()), LEVEL_BAND)
     centre = np.array([*workspace.center, workspace.z_min])
     points = np.stack([x[near], y[near], z[near]], axis=1) - centre

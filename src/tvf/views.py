@@ -447,10 +447,11 @@ def fuse_views(
     (:func:`resolve_hole_fill`; ``auto`` fills them as the simulator does); with ``level_table``, each
     camera is first levelled on the table it sees (tilt and height of its pose corrected)."""
     fill = resolve_hole_fill(hole_fill, len(views))
-    cameras = level_cameras(views, workspace, source) if level_table else [v.camera for v in views]
-    levelling = tuple(
-        level_correction(v.camera, c) for v, c in zip(views, cameras, strict=True) if level_table
-    )
+    cameras = [v.camera for v in views]
+    levelling: tuple[dict, ...] = ()
+    if level_table:
+        cameras = level_cameras(views, workspace, source)
+        levelling = tuple(level_correction(v.camera, c) for v, c in zip(views, cameras, strict=True))
     color, height, covered = fuse_with_coverage([(v.color, v.depth) for v in views], cameras, workspace)
     if not covered.any():
         ws = workspace
