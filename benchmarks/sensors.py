@@ -21,7 +21,7 @@ import numpy as np
 from tvf.sim.env import TvfEnv
 from tvf.tasks import BUILTIN
 
-SENSORS = ("ideal", "d415", "one", "d415-one", "d415-one-calib", "d415-one-calib-level")
+SENSORS = ("ideal", "d415", "one", "d415-one", "d415-one-calib", "d415-one-calib-level", "d415-one-goal2")
 
 
 def images(sensor: str, jobs: list[tuple[str, int]]) -> list[dict]:

@@ -105,6 +105,31 @@ def test_levelling_on_the_table_undoes_most_of_a_calibration_error():
     assert errors["d415-one-calib-level"] < errors["d415-one"] + 0.001, errors
 
 
+def test_a_goal_recorded_from_both_sides_sees_what_the_structure_hides_from_the_front(tmp_path):
+    # stack-building: from the front, the top block hides the far column's top (docs/real-robot.md)
+    task = get_task("stack-building")
+    truth = sim_env(task).reset(seed=211)[1]["goal"]["height"]
+    front = TvfEnv(task, sensor="d415-one")
+    both = TvfEnv(task, sensor="d415-one-goal2")
+    front_obs, front_info = front.reset(seed=211)
+    both_obs, both_info = both.reset(seed=211)
+    assert [c.name for c in both.goal_views[1]] == ["one", "one-back"]
+    assert [c.name for c in both.sensed_views()[1]] == ["one"]  # the scene: the one camera, as before
+    assert np.array_equal(front_obs["height"], both_obs["height"])  # the same draws: the same scene
+    assert front.coverage["goal"] < 0.93 < 0.99 < both.coverage["goal"]  # measured: 0.915 and 0.997
+    errors = [np.abs(info["goal"]["height"] - truth) for info in (front_info, both_info)]
+    assert (errors[1] > 0.02).sum() < 0.2 * (errors[0] > 0.02).sum(), [(e > 0.02).sum() for e in errors]
+    # offline, the goal folder of two cameras fuses to the simulator's goal as `tvf plan --goal` reads it
+    from tvf.views import load_rgbh, write_views
+
+    write_views(tmp_path / "goal", *both.goal_views, both.world.workspace)
+    for fill in ("background", "auto"):
+        offline = load_rgbh(tmp_path / "goal", both.world.workspace, "--goal", fill)
+        assert offline.n_views == 2 and np.abs(offline.height - both_info["goal"]["height"]).mean() < 0.001
+    front.close()
+    both.close()
+
+
 def test_the_oracle_still_finishes_through_the_noisy_one_camera_rig(noisy):
     result = run_episode(noisy, 1, OraclePolicy(noisy), TASK.horizon)
     assert result.success, result.primitives

@@ -210,6 +210,28 @@ def test_the_levelled_preset_levels_the_miscalibrated_camera():
     assert angle_between(calib, cam) > 0.99 and angle_between(levelled, cam) < angle_between(calib, cam)
 
 
+def test_the_two_sided_goal_preset_changes_the_goal_rig_only():
+    cfg = SENSORS["d415-one-goal2"]
+    assert (cfg.cameras, cfg.goal_rig) == ("one", "two") and SENSORS["d415-one"].goal_rig == "one"
+    assert dataclasses.replace(cfg, name="d415-one", goal_cameras=None) == SENSORS["d415-one"]
+
+
+def test_the_back_pose_mirrors_the_front_camera_across_the_workspace_centre():
+    from tvf.sim.camera import ONE_CAMERA, ONE_CAMERA_BACK
+
+    centre = np.array([0.5, 0.0, 0.0])
+    for cam in (ONE_CAMERA, ONE_CAMERA_BACK):
+        to_centre = centre - np.asarray(cam.position)
+        axis = cam.rotation @ [0.0, 0.0, 1.0]
+        assert np.allclose(axis, to_centre / np.linalg.norm(to_centre), atol=1e-9)  # it looks at the centre
+        assert np.isclose(np.linalg.norm(to_centre), 0.8) and np.isclose(np.degrees(np.arcsin(-axis[2])), 60)
+    mirror = np.diag([-1.0, 1.0, 1.0])  # x -> 1 - x about the centre's plane x = 0.5
+    front, back = (np.asarray(cam.position) - centre for cam in (ONE_CAMERA, ONE_CAMERA_BACK))
+    assert np.allclose(mirror @ front, back)
+    # each image's "down" is the mirror of the other's: one image is the other's view turned round
+    assert np.allclose(mirror @ ONE_CAMERA.rotation[:, 1], ONE_CAMERA_BACK.rotation[:, 1])
+
+
 def replace_level(cfg: SensorConfig, level: bool) -> SensorConfig:
     return dataclasses.replace(cfg, name="d415-one-calib", level_table=level)
 
@@ -223,7 +245,8 @@ def replace_level(cfg: SensorConfig, level: bool) -> SensorConfig:
         ({"sigma_1m": -0.001}, "sigma_1m must be a finite number >= 0"),
         ({"depth_unit": float("nan")}, "depth_unit must be a finite number >= 0"),
         ({"dropout": 1.5}, "dropout is a probability in [0, 1]"),
-        ({"cameras": "two"}, "cameras must be one of three, one, not 'two'"),
+        ({"cameras": "four"}, "cameras must be one of three, one, two, not 'four'"),
+        ({"goal_cameras": "front"}, "goal_cameras must be one of three, one, two or None, not 'front'"),
         ({"edge_width": 0}, "edge_width must be an integer >= 1"),
         ({"calib_draw": "sometimes"}, "calib_draw must be 'episode' or 'fixed'"),
         ({"hole_fill": "blur"}, "hole_fill must be one of nearest, background, not 'blur'"),

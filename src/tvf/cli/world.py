@@ -146,8 +146,8 @@ class RenderCmd:
     """A YAML or JSON file of extra tasks (docs/tasks.md) that --task may name."""
     sensor: str = "ideal"
     """The cameras (tvf.sim.sensors; docs/real-robot.md): ideal | one | d415 | d415-one | d415-one-calib |
-    d415-one-calib-level (levelled on the table) | d435-one. The images (and the exported views) are what
-    that rig records."""
+    d415-one-calib-level (levelled on the table) | d415-one-goal2 (the goal from in front and behind) |
+    d435-one. The images (and the exported views) are what that rig records."""
     depth_scale: float = 0.001
     """Metres per unit of the exported 16-bit depth PNGs: 0.001 (mm, ROS REP 118's default) or finer, e.g.
     0.0001 (a RealSense's finest setting; 16 bits then reach 6.5 m). Each camera file records it."""

@@ -89,7 +89,8 @@ def _new_env(task: Task | str, split: str, sensor: str = "ideal"):
 
 def _config_attrs(env) -> dict[str, Any]:
     obs = env.config.sim.observation
-    plain = env.sensor.ideal and env.sensor.cameras == "three" and env.sensor.hole_fill == "nearest"
+    rigs = (env.sensor.cameras, env.sensor.goal_rig)
+    plain = env.sensor.ideal and rigs == ("three", "three") and env.sensor.hole_fill == "nearest"
     sensor = {} if plain else {"sensor": asdict(env.sensor)}
     return {
         **sensor,

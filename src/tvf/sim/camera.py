@@ -149,9 +149,24 @@ ONE_CAMERA = CameraConfig(
     (math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG), math.pi, -math.pi / 2), 640, 480, 450.0,
 )  # fmt: skip
 
-Rig = Literal["three", "one"]
-RIGS: dict[str, tuple[CameraConfig, ...]] = {"three": REFERENCE_CAMERAS, "one": (ONE_CAMERA,)}
-"""The camera rigs: the three Ravens cameras (the default) or the one camera of a real set-up."""
+#: :data:`ONE_CAMERA` moved to the opposite side of the workspace (behind the arm, which is lifted out of
+#: every render), looking back at the centre at the same angle and distance: what the one camera sees from
+#: its second pose when the goal is recorded from two sides (rig ``two``).
+ONE_CAMERA_BACK = CameraConfig(
+    "one-back",
+    (0.5 - ONE_CAMERA_DISTANCE * math.cos(math.radians(ONE_CAMERA_ELEVATION_DEG)), 0.0,
+     ONE_CAMERA_DISTANCE * math.sin(math.radians(ONE_CAMERA_ELEVATION_DEG))),
+    (math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG), math.pi, math.pi / 2), 640, 480, 450.0,
+)  # fmt: skip
+
+Rig = Literal["three", "one", "two"]
+RIGS: dict[str, tuple[CameraConfig, ...]] = {
+    "three": REFERENCE_CAMERAS,
+    "one": (ONE_CAMERA,),
+    "two": (ONE_CAMERA, ONE_CAMERA_BACK),
+}
+"""The camera rigs: the three Ravens cameras (the default), the one camera of a real set-up, or that
+camera's two poses, in front and behind (a goal recorded from both sides: ``SensorConfig.goal_cameras``)."""
 
 
 @dataclass(frozen=True)

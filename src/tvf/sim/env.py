@@ -167,7 +167,7 @@ class TvfEnv(gym.Env):
         self._oracle_rng = np.random.default_rng(oracle_ss)
         self.steps = 0
         self.terminated = False
-        self.goal_views = self._sense(*self.world.goal_views(), sensors.GOAL)
+        self.goal_views = self._sense(*self.world.goal_views(self.sensor.goal_rig), sensors.GOAL)
         goal_color, goal_height = self._fuse(*self.goal_views, "goal")
         self._goal = {"color": goal_color, "height": goal_height}
         obs = self._observe()

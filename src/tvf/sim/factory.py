@@ -63,5 +63,7 @@ D415_ONE_CALIB = SimEnvFactory(sensor="d415-one-calib")
 """One D415-like camera whose pose is off by 3 mm and 1 degree (drawn per episode)."""
 D415_ONE_CALIB_LEVEL = SimEnvFactory(sensor="d415-one-calib-level")
 """That miscalibrated camera, levelled on the table before each fusion (tilt and height corrected)."""
+D415_ONE_GOAL2 = SimEnvFactory(sensor="d415-one-goal2")
+"""One D415-like camera for the scene; the goal recorded with it from in front and from behind."""
 D435_ONE = SimEnvFactory(sensor="d435-one")
 """One camera with the D435's noise (2.5 times the D415's)."""

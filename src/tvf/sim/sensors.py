@@ -9,7 +9,8 @@ rendered view and before the fusion (:mod:`tvf.fusion`), as on a real robot:
   matching fails) with probability ``edge_dropout``, and anywhere with probability ``dropout``;
 * **quantisation** of the depth to ``depth_unit`` (the RealSense default unit is 1 mm);
 * **colour noise**: Gaussian, ``color_sigma`` grey levels, rounded and clipped to uint8;
-* **the rig** (``cameras``): the three Ravens cameras or one in front (:data:`tvf.sim.camera.ONE_CAMERA`);
+* **the rig** (``cameras``): the three Ravens cameras or one in front (:data:`tvf.sim.camera.ONE_CAMERA`),
+  and the rig of the goal image (``goal_cameras``; e.g. ``two``: that camera in front and behind);
 * **calibration errors**: the fusion back-projects with a perturbed pose of each camera (translation of
   ``calib_translation`` metres in a random direction, rotation of ``calib_rotation_deg`` about a random
   axis through the camera's centre) while the world renders from the true one. ``calib_draw = "episode"``
@@ -93,6 +94,10 @@ class SensorConfig:
     level_table: bool = False
     """Level each camera on the table it sees before the fusion (:func:`tvf.fusion.level_on_table`): a
     plane fit that corrects a pose's tilt and height, as a real rig can check its calibration each frame."""
+    goal_cameras: Rig | None = None
+    """The rig the goal image is recorded with (None: ``cameras``): ``two`` records it with the one camera
+    from in front and from behind (:data:`tvf.sim.camera.ONE_CAMERA_BACK`), so the parts of a finished
+    structure that its taller parts hide from one side are seen from the other (the scene: ``cameras``)."""
     hole_fill: Literal["nearest", "background"] = "nearest"
     """How the fusion fills what no camera measured (:data:`tvf.fusion.HOLE_FILLS`): ``nearest`` (the
     three-camera rig, as the stored datasets were made) or ``background`` (one camera: the lowest surface
@@ -102,6 +107,9 @@ class SensorConfig:
         if self.cameras not in RIGS:
             raise SensorError(f"sensor {self.name!r}: cameras must be one of {', '.join(RIGS)}, "
                               f"not {self.cameras!r}")  # fmt: skip
+        if self.goal_cameras is not None and self.goal_cameras not in RIGS:
+            raise SensorError(f"sensor {self.name!r}: goal_cameras must be one of {', '.join(RIGS)} or None, "
+                              f"not {self.goal_cameras!r}")  # fmt: skip
         for key in ("sigma_1m", "sigma_floor", "edge_jump", "depth_unit", "color_sigma",
                     "calib_translation", "calib_rotation_deg"):  # fmt: skip
             value = getattr(self, key)
@@ -140,6 +148,11 @@ class SensorConfig:
     def ideal(self) -> bool:
         """Perfect cameras (the rig may still be ``one``)."""
         return not (self.corrupts_views or self.miscalibrated or self.level_table)
+
+    @property
+    def goal_rig(self) -> Rig:
+        """The rig the goal image is recorded with: ``goal_cameras``, else ``cameras``."""
+        return self.goal_cameras or self.cameras
 
     def sigma(self, depth: np.ndarray) -> np.ndarray:
         """The depth noise's standard deviation (m) at ``depth`` (m along the optical axis)."""
@@ -266,12 +279,14 @@ SENSORS: dict[str, SensorConfig] = {
         SensorConfig("d415-one", **_ONE, **_D415),
         SensorConfig("d415-one-calib", **_ONE, **_D415, **_CALIB),
         SensorConfig("d415-one-calib-level", **_ONE, **_D415, **_CALIB, level_table=True),
+        SensorConfig("d415-one-goal2", **_ONE, **_D415, goal_cameras="two"),
         SensorConfig("d435-one", **_ONE, **{**_D415, "sigma_1m": 0.0036}),
     )
 }
 """The named sensors: ``ideal`` (perfect, the default), ``one`` (one perfect camera), ``d415`` (three
 D415-like cameras), ``d415-one`` (one), ``d415-one-calib`` (one, miscalibrated by 3 mm and 1 degree, drawn
-per episode), ``d415-one-calib-level`` (that camera levelled on the table before each fusion) and ``d435-one``
+per episode), ``d415-one-calib-level`` (that camera levelled on the table before each fusion),
+``d415-one-goal2`` (``d415-one`` with the goal recorded from in front and from behind) and ``d435-one``
 (one camera with the D435's larger noise)."""
 
 FIELDS = tuple(f.name for f in fields(SensorConfig))

@@ -7,7 +7,7 @@ scene for a task from an explicit ``numpy.random.Generator``; nothing here touch
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pybullet as p
@@ -15,7 +15,7 @@ import pybullet as p
 from tvf.errors import TvfError
 from tvf.fusion import PinholeCamera, View, fuse
 from tvf.geometry import EDGE_MARGIN, REACH, WORKSPACE, Workspace, rotate_xy
-from tvf.sim.camera import ObservationConfig, render_views
+from tvf.sim.camera import ObservationConfig, Rig, render_views
 from tvf.sim.robot import MotionConfig, SuctionArm
 from tvf.tasks import BLOCK_RADIUS, BLOCK_SIZE, CELL_RADIUS, CELL_SIZE, CELL_THICKNESS, Task
 
@@ -218,16 +218,18 @@ class World:
             p.removeState(state, physicsClientId=self.client)
 
     # ---------------------------------------------------------------- sensing
-    def views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
+    def views(self, rig: Rig | None = None) -> tuple[list[View], tuple[PinholeCamera, ...]]:
         """The raw RGB-D views of the observation's cameras (colour uint8, depth float32 metres along the
-        optical axis) and the cameras as calibrated intrinsics + poses (what a real rig would record).
+        optical axis) and the cameras as calibrated intrinsics + poses (what a real rig would record);
+        ``rig`` renders another rig's cameras (:data:`tvf.sim.camera.RIGS`; None: the observation's).
 
         The arm is lifted out of every camera's view for the render (no physics step happens
         meanwhile), which is cheaper than rendering it parked and never occludes the workspace.
         """
         p.resetBasePositionAndOrientation(self.arm.body, HIDDEN, [0, 0, 0, 1], physicsClientId=self.client)
+        cfg = self.config.observation if rig is None else replace(self.config.observation, rig=rig)
         try:
-            return render_views(self.client, self.config.observation), self.config.observation.pinholes()
+            return render_views(self.client, cfg), cfg.pinholes()
         finally:
             p.resetBasePositionAndOrientation(
                 self.arm.body, [0, 0, 0], [0, 0, 0, 1], physicsClientId=self.client
@@ -242,15 +244,16 @@ class World:
         """The fused top-down image of :meth:`views`."""
         return self.fuse(*self.views())
 
-    def goal_views(self) -> tuple[list[View], tuple[PinholeCamera, ...]]:
-        """:meth:`views` of the finished structure: blocks settled on their targets, scene restored after."""
+    def goal_views(self, rig: Rig | None = None) -> tuple[list[View], tuple[PinholeCamera, ...]]:
+        """:meth:`views` (of ``rig``'s cameras) of the finished structure: blocks settled on their targets,
+        scene restored after."""
         state = self.save_state()
         try:
             pos, yaw = self.target_poses()
             order = np.argsort(pos[:, 2], kind="stable")
             self.set_block_poses(pos[order] + [0, 0, 1e-4], yaw[order])
             self.settle(120)
-            return self.views()
+            return self.views(rig)
         finally:
             self.restore_state(state)
 
