@@ -138,26 +138,29 @@ def reference_cameras(width: int = 640, height: int = 480) -> tuple[CameraConfig
 
 ONE_CAMERA_ELEVATION_DEG = 60.0
 ONE_CAMERA_DISTANCE = 0.8
+
+
+def _facing_workspace_centre(name: str, side: int) -> CameraConfig:
+    """A camera :data:`ONE_CAMERA_DISTANCE` from the workspace centre (0.5, 0, 0) on the +x (``side`` 1,
+    opposite the arm) or -x (``side`` -1, behind it) side, looking at it :data:`ONE_CAMERA_ELEVATION_DEG`
+    below the horizontal, with the intrinsics of the reference cameras."""
+    elevation = math.radians(ONE_CAMERA_ELEVATION_DEG)
+    position = (0.5 + side * ONE_CAMERA_DISTANCE * math.cos(elevation), 0.0,
+                ONE_CAMERA_DISTANCE * math.sin(elevation))  # fmt: skip
+    tilt = math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG)
+    return CameraConfig(name, position, (tilt, math.pi, -side * math.pi / 2), 640, 480, 450.0)
+
+
 #: The single camera of a rig like the paper's real set-up: in front of the workspace (opposite the arm),
 #: looking down at 60 degrees below the horizontal at the workspace centre from 0.8 m, with the same
 #: intrinsics as the reference cameras. At 480 x 360 the whole 0.5 x 0.5 m workspace, up to z = 0.28 m,
 #: is in view (image rows 3-287, columns 45-435) at 0.43-0.92 m depth (docs/real-robot.md).
-ONE_CAMERA = CameraConfig(
-    "one",
-    (0.5 + ONE_CAMERA_DISTANCE * math.cos(math.radians(ONE_CAMERA_ELEVATION_DEG)), 0.0,
-     ONE_CAMERA_DISTANCE * math.sin(math.radians(ONE_CAMERA_ELEVATION_DEG))),
-    (math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG), math.pi, -math.pi / 2), 640, 480, 450.0,
-)  # fmt: skip
+ONE_CAMERA = _facing_workspace_centre("one", 1)
 
 #: :data:`ONE_CAMERA` moved to the opposite side of the workspace (behind the arm, which is lifted out of
 #: every render), looking back at the centre at the same angle and distance: what the one camera sees from
 #: its second pose when the goal is recorded from two sides (rig ``two``).
-ONE_CAMERA_BACK = CameraConfig(
-    "one-back",
-    (0.5 - ONE_CAMERA_DISTANCE * math.cos(math.radians(ONE_CAMERA_ELEVATION_DEG)), 0.0,
-     ONE_CAMERA_DISTANCE * math.sin(math.radians(ONE_CAMERA_ELEVATION_DEG))),
-    (math.radians(90.0 - ONE_CAMERA_ELEVATION_DEG), math.pi, math.pi / 2), 640, 480, 450.0,
-)  # fmt: skip
+ONE_CAMERA_BACK = _facing_workspace_centre("one-back", -1)
 
 Rig = Literal["three", "one", "two"]
 RIGS: dict[str, tuple[CameraConfig, ...]] = {
