@@ -90,12 +90,12 @@ def load_planner(
     ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the
     GCTN over quarter turns of the scene (default: the method's); ``goal_mask`` True masks the GCTN's maps
     by the height difference to the goal (:mod:`tvf.models.goal_mask`; default: the method's),
-    ``mask_places`` (gap, centred, bottom-up, ordered, layered) narrows its places (default: the method's) and
-    ``centred_share`` sets how near a region's middle the centred ones lie (default 0.9); ``refine_yaw``
-    True sets the place's turn to the block yaws read from the two height maps (:mod:`tvf.planning.yaw`;
-    default: the method's); ``centre_picks`` True moves the GCTN's picks to the centres of the block
-    faces under them (:mod:`tvf.models.pick_centre`; default: the method's). Errors name the bad argument
-    or file in one line."""
+    ``mask_places`` (gap, centred, bottom-up, ordered, layered, cells) narrows its places (default: the
+    method's) and ``centred_share`` sets how near a region's middle the centred ones lie (default 0.9);
+    ``refine_yaw`` True sets the place's turn to the block yaws read from the two height maps
+    (:mod:`tvf.planning.yaw`; default: the method's); ``centre_picks`` True moves the GCTN's picks to the
+    centres of the block faces under them (:mod:`tvf.models.pick_centre`; default: the method's). Errors
+    name the bad argument or file in one line."""
     learned = ("gctn", *PLANNER_METHODS)
     if method not in learned or get_method(method).needs_env:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")

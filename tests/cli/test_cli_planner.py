@@ -225,7 +225,7 @@ def test_eval_records_centred_picks_and_resumes_only_with_them(capsys, tmp_path,
     code, _, err = run(capsys, "eval", "--method", "gctn", *args)
     assert code == 0, err
     recorded = json.loads((tmp_path / "e" / "eval.json").read_text())
-    assert recorded["centre_picks"] is True and recorded["mask_places"] == "layered"  # the defaults
+    assert recorded["centre_picks"] is True and recorded["mask_places"] == "cells"  # the defaults
     code, _, err = run(capsys, "eval", "--method", "gctn", "--centre-picks", "False", *args)
     assert code == 2 and "other centre_picks" in err, err  # the GCTN's own pick pixels: another evaluation
 
@@ -266,7 +266,7 @@ def test_eval_records_the_mask_places_and_refuses_to_resume_with_another_rule(
     assert code == 0, err
     assert json.loads((tmp_path / "e" / "eval.json").read_text())["mask_places"] == "ordered"
     code, _, err = run(capsys, "eval", "--method", "gctn", *args)
-    assert code == 2 and "other mask_places" in err  # the default rule (layered) is another evaluation
+    assert code == 2 and "other mask_places" in err  # the default rule (cells) is another evaluation
     code, _, err = run(capsys, "eval", "--method", "gctn", "--goal-mask", "False", "--mask-places", "ordered",
                        *args)  # fmt: skip
     assert code == 2 and "add --goal-mask True" in err

@@ -23,6 +23,7 @@ from tvf.models.goal_mask import (
     goal_masked,
     lowest_places,
     mask_of,
+    open_cells,
     pick_allowed,
     place_allowed,
     seams_closed,
@@ -295,6 +296,34 @@ def test_layered_places_fill_a_layer_from_its_ends_in_onto_the_goals_cells() -> 
     fill[0, 74:87, 58:103] = True  # a row's fill region; every place of it is a candidate
     ends = _columns(flush_places(fill, fill))
     assert ends and all(c < 67 or c > 93 for c in ends)  # the row's ends, not its middle
+
+
+def test_cells_places_put_a_block_beside_a_finished_one_on_its_own_cell() -> None:
+    base = [(80, 64, 0), (80, 80, 0), (80, 96, 0)]  # a row of three cells, 16 px (5 cm) apart
+    for layers in (1, 2):  # put-block-base's row, and stack-rectangle's two layers
+        goal = _stacked([(r, c, layer) for layer in range(layers) for r, c, _ in base])
+        goal[0, 3, 74:87, 58:103] = goal[0, 3, 80, 64]  # the fused map barely shows the seams
+        under = base if layers == 2 else []
+        finished_end = _stacked([*under, (80, 96, layers - 1)])  # one end of the top layer done
+        layered = _columns(place_allowed(finished_end, goal, rule="layered"))
+        cells = _columns(place_allowed(finished_end, goal, rule="cells"))
+        assert max(layered) == 78  # the middle cell's places 2 px or more off it, away from the finished end
+        assert cells == {63, 64, 65, 79, 80, 81}  # the free end, and the middle on its own cell
+        nearer = _stacked([*under, (80, 94, layers - 1)])  # that end 2 px nearer the middle: pushed along
+        assert _columns(place_allowed(nearer, goal, rule="cells")) == {63, 64, 65, 77, 78, 79}
+        fill = open_cells(finished_end, seams_closed(goal), place_allowed(finished_end, goal))[0]
+        assert fill[80, 58:87].all() and not fill[77:84, 87:].any()  # the seam beside the finished end: out
+        if layers == 2:  # the first layer's blocks stand under the goal's height: none is finished
+            first = _stacked(base)
+            fill = place_allowed(first, goal)
+            assert torch.equal(open_cells(first, goal, fill), fill)
+            blurred = goal.clone()  # the goal's edge blurred down to near the first layer's top: a thin rim
+            rim = torch.zeros(160, 160, dtype=torch.bool)
+            rim[74:87, 58:103] = True
+            rim[76:85, 60:101] = False
+            blurred[0, 3, rim] = 0.7 * first[0, 3, 80, 64] + 0.3 * goal[0, 3, 80, 64]
+            fill = place_allowed(first, blurred, rule="gap")
+            assert torch.equal(open_cells(first, blurred, fill), fill)  # a rim is no finished block
 
 
 @pytest.mark.parametrize("rule", PLACE_RULES)

@@ -107,7 +107,7 @@ def test_the_spec_refine_yaw_reaches_the_policy_and_needs_a_gctn():
 
 def test_the_spec_mask_places_choose_the_goal_masks_place_rule():
     ordered = mask_of(make_policy(PolicySpec("tvf-large", goal_mask=True, mask_places="ordered")).search.gctn)
-    assert ordered.places == "ordered" and mask_of(make_policy(PolicySpec("gctn")).model).places == "layered"
+    assert ordered.places == "ordered" and mask_of(make_policy(PolicySpec("gctn")).model).places == "cells"
     assert mask_of(make_policy(PolicySpec("gctn", mask_places="gap")).model).places == "gap"
     assert mask_of(make_policy(PolicySpec("gctn", mask_places="centred", turns=1)).model).places == "centred"
     with pytest.raises(TvfError, match="unknown --mask-places 'tallest'; choose one of gap, centred"):
@@ -124,7 +124,7 @@ def test_the_spec_centred_share_and_root_alpha_reach_the_mask_and_the_search():
         make_policy(PolicySpec("gctn", mask_places="centred", centred_share=1.2))
     with pytest.raises(TvfError, match="add --goal-mask True --mask-places ordered"):
         make_policy(PolicySpec("gctn", mask_places="gap", centred_share=0.75))  # gap: nothing to centre
-    assert mask_of(make_policy(PolicySpec("gctn", centred_share=0.75)).model).share == 0.75  # layered
+    assert mask_of(make_policy(PolicySpec("gctn", centred_share=0.75)).model).share == 0.75  # cells
     with pytest.raises(TvfError, match=r"drop --root-alpha"):
         make_policy(PolicySpec("gctn", root_alpha=0.001))
 

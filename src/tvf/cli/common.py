@@ -60,11 +60,12 @@ class PlannerFlags:
     """With the goal mask: gap (every place the goal stands above the scene) | centred (only the middles
     of those regions) | bottom-up (first the places one block finishes: a bridge waits for its columns) |
     ordered (centred, then bottom-up) | layered (centred, on the lowest layer still to fill, filled
-    from its ends and corners in, then bottom-up; best with --centre-picks True); default: the
-    method's, layered for gctn, tvf-small and tvf-large (docs/planner.md)."""
+    from its ends and corners in, then bottom-up; best with --centre-picks True) | cells (layered,
+    with a block beside a finished one put on its own cell, not a seam's width off it); default: the
+    method's, cells for gctn, tvf-small and tvf-large (docs/planner.md)."""
     centred_share: float | None = None
-    """With --mask-places centred, ordered or layered: a place's block footprint must hold this share of the
-    allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
+    """With --mask-places centred, ordered, layered or cells: a place's block footprint must hold this share
+    of the allowed pixels of the best-filled one (default 0.9: about a pixel either way of a region's middle;
     lower keeps more of each region; docs/planner.md)."""
     refine_yaw: bool | None = None
     """GCTN and TVF: True sets the place's turn to the yaws of the picked block and of the goal's block at

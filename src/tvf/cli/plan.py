@@ -148,11 +148,11 @@ class PlanCmd:
     """True / False: mask the GCTN's maps by the height difference to the goal or not (False: the
     paper's; docs/planner.md); default: the method's."""
     mask_places: str | None = None
-    """With the goal mask: gap | centred | bottom-up | ordered | layered, the places it keeps
-    (docs/planner.md); default: the method's (layered for every learned method)."""
+    """With the goal mask: gap | centred | bottom-up | ordered | layered | cells, the places it keeps
+    (docs/planner.md); default: the method's (cells for every learned method)."""
     centred_share: float | None = None
-    """With --mask-places centred, ordered or layered: how near a region's middle a place lies (a share of the
-    best-filled footprint; default 0.9, docs/planner.md)."""
+    """With --mask-places centred, ordered, layered or cells: how near a region's middle a place lies (a share
+    of the best-filled footprint; default 0.9, docs/planner.md)."""
     refine_yaw: bool | None = None
     """True / False: set the place's turn to the block yaws read from the two height maps where both
     readings are clear, or keep the GCTN's bin (False: the paper's; docs/planner.md); default: the

@@ -1,6 +1,6 @@
 """A goal-difference mask on the GCTN's maps: pick only where the scene stands above the goal, place only
 where the goal stands above the scene (``--goal-mask``; the default of every learned method, with the
-``layered`` places; ``--goal-mask False`` is the paper's unmasked GCTN).
+``cells`` places; ``--goal-mask False`` is the paper's unmasked GCTN).
 
 Both images are top-down height maps of the same workspace, so a block that sits where the goal has it
 already is not worth moving, and a place where the goal has nothing more than the scene is not worth
@@ -23,7 +23,7 @@ import torch.nn.functional as F
 
 from tvf.geometry import PIXEL_SIZE
 from tvf.models.gctn import GCTN, GctnWrapper
-from tvf.models.images import HEIGHT_STD
+from tvf.models.images import HEIGHT_STD, heights_of
 from tvf.tasks import BLOCK_SIZE
 
 MARGIN_M = 0.02
@@ -60,7 +60,7 @@ def pick_allowed(current: torch.Tensor, goal: torch.Tensor, margin: float = MARG
     return _allowed(_height_gap(current, goal), margin)
 
 
-PLACE_RULES = ("gap", "centred", "bottom-up", "ordered", "layered")
+PLACE_RULES = ("gap", "centred", "bottom-up", "ordered", "layered", "cells")
 """Which places the mask keeps (``--mask-places``): ``gap`` every pixel where the goal stands half a block
 above the scene; ``centred`` only those whose block footprint lies (almost) wholly in such a region
 (:func:`centred_places`); ``bottom-up`` only the places one block finishes while there are any
@@ -69,9 +69,11 @@ above the scene; ``centred`` only those whose block footprint lies (almost) whol
 a block goes on it, as the expert builds), the middles among them (:func:`centred_places`), of those
 the ones flush against the region's boundary (:func:`flush_places`: a layer filled from its corners
 in), and of those first the ones one block finishes; ``layered`` reads the goal with its seams closed
-(:func:`seams_closed`)."""
+(:func:`seams_closed`); ``cells`` is ``layered`` with the middles and the flush places read on the cells
+still to fill (:func:`open_cells`: the region to fill less the seam beside each finished block) instead
+of on the places a block fits, so a block beside a finished one lands on its own cell."""
 
-CENTRING_RULES = ("centred", "ordered", "layered")
+CENTRING_RULES = ("centred", "ordered", "layered", "cells")
 """The place rules that centre their places (:func:`centred_places`, ``--centred-share``)."""
 
 
@@ -98,17 +100,21 @@ def place_allowed(
 ) -> torch.Tensor:
     """Where the goal stands more than ``margin`` above the scene: a block the scene still lacks (B, H, W);
     ``rule`` (:data:`PLACE_RULES`) narrows it to the centres of such regions (``share``:
-    :func:`centred_places`), to the places that need no block under them first, both, or (``layered``)
-    to the middles of the lowest layer still to fill and then the places that need no block under them."""
+    :func:`centred_places`), to the places that need no block under them first, both, or (``layered``,
+    ``cells``) to the middles of the lowest layer still to fill and then the places that need no block
+    under them."""
     allowed = _allowed(_height_gap(goal, current), margin)
-    if check_place_rule(rule) == "layered":  # the lowest landing places first, then their middles
+    if check_place_rule(rule) in ("layered", "cells"):  # the lowest landing places first, then their middles
         goal = seams_closed(goal)
-        allowed = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
-        centred = centred_places(allowed, share, lowest_places(current, allowed, margin), disc=True)
-        allowed = flush_places(centred, allowed)
+        fitting = _unless_empty(allowed & fitting_places(current, goal, margin), allowed)
+        fill = fitting  # layered: the places a block fits; cells: the cells still to fill
+        if rule == "cells":
+            fill = _unless_empty(open_cells(current, goal, allowed, margin), allowed)
+        centred = centred_places(fill, share, lowest_places(current, fitting, margin), disc=True)
+        allowed = flush_places(centred, fill)
     elif rule in CENTRING_RULES:
         allowed = centred_places(allowed, share)
-    if rule in ("bottom-up", "ordered", "layered"):
+    if rule in ("bottom-up", "ordered", "layered", "cells"):
         allowed = _unless_empty(allowed & finishing_places(current, goal, margin), allowed)
     return allowed
 
@@ -124,6 +130,31 @@ def seams_closed(image: torch.Tensor) -> torch.Tensor:
     which read pixel by pixel is a place one block finishes."""
     closed = -_square_max(-_square_max(image[:, 3:4], SEAM_PX), SEAM_PX)
     return torch.cat([image[:, :3], closed], dim=1)
+
+
+SEAM_GAP_PX = 3
+"""The seam between two neighbouring cells' blocks in pixels (1 cm at 3.125 mm): :func:`open_cells` keeps
+this far off a finished block."""
+
+CORE_PX = 7
+"""The disc (pixels) a finished patch must hold to be a block's top in :func:`open_cells`: narrower than a
+block (13), wider than the rims (a few pixels) where a blurred goal edge meets a lower layer."""
+
+
+def open_cells(
+    current: torch.Tensor, goal: torch.Tensor, fill: torch.Tensor, margin: float = MARGIN_M
+) -> torch.Tensor:
+    """The pixels of ``fill`` (B, H, W) more than :data:`SEAM_GAP_PX` from a finished block's top (a patch
+    that stands more than ``margin`` above the table and within ``margin`` of the goal's height, at least
+    :data:`CORE_PX` wide): the cells still to fill without the seam beside their finished neighbours. The
+    fused goal shows that seam barely, so the region to fill reaches the neighbour's edge, a seam past its
+    cell; centred and flush on that region, a block lands on its cell (:data:`PLACE_RULES`, ``cells``).
+    The width test leaves out the thin rims where the goal's blurred edge meets a lower layer's top."""
+    height = heights_of(current)
+    finished = (height > margin) & (_height_gap(goal, current) <= margin)
+    core = _disc_max((~finished).to(height.dtype), CORE_PX) <= 0  # wholly finished discs: block tops
+    near = _disc_max(core.to(height.dtype), 2 * (CORE_PX // 2 + SEAM_GAP_PX) + 1) > 0
+    return fill & ~near
 
 
 def _square_max(height: torch.Tensor, size: int) -> torch.Tensor:

@@ -172,11 +172,12 @@ def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
-IMAGE_RULES = {"goal_mask": True, "refine_yaw": True, "mask_places": "layered", "centre_picks": True}
+IMAGE_RULES = {"goal_mask": True, "refine_yaw": True, "mask_places": "cells", "centre_picks": True}
 """What every learned method reads from the two height maps besides its networks, each chosen on
 validation seeds (docs/results.md): the GCTN's maps masked by the height difference to the goal ("A
 goal-difference mask"), its places kept to the lowest layer still to fill, filled from its ends and
-corners in, and its picks moved to the centres of the block faces ("Layered places, second round"), the
+corners in, each block beside a finished one on its own cell ("Cells, not fitting centres"), and its
+picks moved to the centres of the block faces ("Layered places, second round"), the
 place turns corrected to the block yaws read from the maps ("Turns read from the height maps"). The
 paper's: --goal-mask False --refine-yaw False --centre-picks False (docs/deviations.md P12-P14, P18)."""
 
@@ -293,7 +294,7 @@ def _check_centred_share(spec: PolicySpec) -> None:
         raise TvfError(f"--centred-share must be a fraction in (0, 1], got {spec.centred_share}")
     if not goal_mask_of(spec) or mask_places_of(spec) not in CENTRING_RULES:
         raise TvfError("--centred-share sets how the goal mask centres its places; add --goal-mask True "
-                       "--mask-places ordered (or centred, layered)")  # fmt: skip
+                       "--mask-places ordered (or centred, layered, cells)")  # fmt: skip
 
 
 def policy_for(spec: PolicySpec, env=None) -> Policy:
