@@ -18,7 +18,7 @@ import numpy as np
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE, world_to_pixel, yaw_to_bin
 from tvf.planning.search import Plan
-from tvf.policies.registry import PLANNER_METHODS, PLANNER_OPTIONS, PolicySpec, get_method, make_policy
+from tvf.policies.registry import LEARNED_METHODS, PLANNER_OPTIONS, PolicySpec, make_policy
 
 __all__ = ["Decision", "Planner", "load_planner"]
 
@@ -84,7 +84,8 @@ def load_planner(
     mask_places: str | None = None, refine_yaw: bool | None = None, centred_share: float | None = None,
     centre_picks: bool | None = None, **planner,
 ) -> Planner:  # fmt: skip
-    """A planner of ``method`` (gctn | tvf-small | tvf-large) with the shipped weights, or a run folder, a
+    """A planner of ``method`` (gctn | tvf-small | tvf-large, or one of them with the paper's rules:
+    gctn-paper | tvf-small-paper | tvf-large-paper) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
     pick_branches, turns_depth, tie_band, root_k, order_branch, gamma, root_alpha; docs/planner.md);
     ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the
@@ -96,9 +97,8 @@ def load_planner(
     (:mod:`tvf.planning.yaw`; default: the method's); ``centre_picks`` True moves the GCTN's picks to the
     centres of the block faces under them (:mod:`tvf.models.pick_centre`; default: the method's). Errors
     name the bad argument or file in one line."""
-    learned = ("gctn", *PLANNER_METHODS)
-    if method not in learned or get_method(method).needs_env:
-        raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(learned)}")
+    if method not in LEARNED_METHODS:
+        raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(LEARNED_METHODS)}")
     unknown = sorted(set(planner) - set(PLANNER_OPTIONS))
     if unknown:
         raise TvfError(f"unknown planner option {unknown[0]!r}; choose one of {', '.join(PLANNER_OPTIONS)}")

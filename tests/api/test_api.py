@@ -62,6 +62,9 @@ def test_every_planner_option_of_the_cli_reaches_the_search():
     assert mask_of(ordered).places == "ordered" and mask_of(ordered).share == 0.8
     centring = tvf.load_planner("gctn", centre_picks=True, turns=1)._policy.model
     assert type(centring).__name__ == "CentredPickGCTN"
+    paper = tvf.load_planner("tvf-large-paper")._policy.search  # the paper's rules, by name
+    assert (paper.config.proposals, paper.config.pick_branches, paper.config.tie_band) == ("kmeans", 1, 0.0)
+    assert type(paper.gctn).__name__ == "GCTN"  # no turns averaged, nothing read from the height maps
 
 
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):

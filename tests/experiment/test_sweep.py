@@ -221,6 +221,24 @@ def test_other_shared_settings_are_refused(sweep):
         run_experiments(base_config(out, ship=True), (1, 2), (0, 1))
 
 
+def test_a_later_command_with_other_methods_adds_their_rows(stand_ins, tmp_path):
+    run_experiments(base_config(tmp_path, methods="gctn"), (1,), (0, 1))
+    trained = list(stand_ins.trained)
+    paper = base_config(tmp_path, methods="gctn-paper", stages="eval,report")
+    report = run_experiments(paper, (1,), (0,))  # one cell, the paper's rules: no new data or training
+    assert stand_ins.trained == trained
+    assert json.loads((tmp_path / "sweep.json").read_text())["settings"]["methods"] == "gctn,gctn-paper"
+    cell = cell_dir(tmp_path, 1, 0)
+    assert json.loads((cell / "experiment.json").read_text())["methods"] == "gctn,gctn-paper"
+    assert "| GCTN | GCTN, paper rules |" in (cell / "report.md").read_text()  # both columns
+    md = report.read_text()
+    assert "| cells finished | 1 of 2 |" in md  # seed 1 has not run gctn-paper
+    row = next(line for line in md.splitlines() if line.startswith("| GCTN, paper rules |"))
+    assert row.startswith("| GCTN, paper rules | 1 of 2 |") and row.endswith("| 1.3% |")  # the paper's GCTN
+    with pytest.raises(TvfError, match="holds a sweep with other episodes"):  # methods add, others do not
+        run_experiments(base_config(tmp_path, methods="tvf-large", episodes=5), (1,), (0,))
+
+
 def test_one_value_of_each_runs_one_experiment_as_before(stand_ins, tmp_path):
     report = run_experiments(base_config(tmp_path), (1,), (0,))
     assert report == tmp_path / "report.md" and report.is_file()

@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 
 from tvf.evaluate.closed_loop import summarise, wilson
-from tvf.experiment.report import PAPER_TASKS_10_DEMOS, PAPER_UNSEEN, PAPER_UNSEEN_10_DEMOS
-from tvf.experiment.sweep_report import aggregate, read_cells, write_sweep_report
+from tvf.experiment.report import PAPER_TASKS_10_DEMOS, PAPER_UNSEEN, PAPER_UNSEEN_10_DEMOS, paper_unseen
+from tvf.experiment.sweep_report import (
+    aggregate,
+    method_styles,
+    paper_task_cell,
+    read_cells,
+    write_sweep_report,
+)
 from tvf.tasks import resolve_tasks
 
 UNSEEN = [t.name for t in resolve_tasks("unseen")]
@@ -61,6 +67,16 @@ def test_the_paper_table_is_in_one_place():
     assert PAPER_UNSEEN[1000] == {"gctn": 0.542, "tvf-small": 0.725, "tvf-large": 0.856}
     assert PAPER_UNSEEN_10_DEMOS is PAPER_UNSEEN[10]
     assert PAPER_TASKS_10_DEMOS["put-plane"] == {"gctn": 0.867, "tvf-large": 1.0}
+
+
+def test_a_paper_rules_row_shares_the_papers_number_colour_and_cell():
+    assert paper_unseen(100, "tvf-large-paper") == paper_unseen(100, "tvf-large") == 0.717
+    assert paper_unseen(10, "oracle") is None and paper_unseen(3, "gctn") is None
+    styles = method_styles(["gctn", "tvf-large", "gctn-paper", "tvf-large-paper", "mine"])
+    assert styles["gctn"] == ("C0", "-", "o") and styles["gctn-paper"] == ("C0", ":", "s")
+    assert styles["tvf-large"][0] == styles["tvf-large-paper"][0] == "C1" and styles["mine"][0] == "C2"
+    both = paper_task_cell(10, "put-plane", ["gctn", "gctn-paper", "tvf-large-paper"])
+    assert both == "GCTN 86.7%, TVF-L 100.0%"  # each paper number once
 
 
 def test_aggregate_over_seeds(sweep):

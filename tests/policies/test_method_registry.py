@@ -14,18 +14,22 @@ from tvf.policies import (
     OraclePolicy,
     Policy,
     PolicySpec,
+    centre_picks_of,
     get_method,
+    goal_mask_of,
     label,
     make_policy,
+    paper_method,
     planner_of,
     policy_for,
+    refine_yaw_of,
 )
 from tvf.sim.factory import sim_env
 from tvf.tasks import get_task
 
 
 def test_planner_presets_and_overrides():
-    assert PLANNER_METHODS == ("tvf-small", "tvf-large")
+    assert PLANNER_METHODS == ("tvf-small", "tvf-large", "tvf-small-paper", "tvf-large-paper")
     small, large = planner_of(PolicySpec("tvf-small")), planner_of(PolicySpec("tvf-large"))
     assert (small.k, small.depth, large.k, large.depth) == (2, 1, 3, 3)
     assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
@@ -157,15 +161,37 @@ def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():
         make_policy(PolicySpec("tvf-large", goal_mask=False, order_branch=True))
     with pytest.raises(TvfError, match=r"gamma must be in \(0, 1\], got 2.0; fix the planner flags"):
         make_policy(PolicySpec("tvf-large", gamma=2.0))
-    with pytest.raises(TvfError, match=r"gctn does not search; planner options need one of tvf-small, "
-                       r"tvf-large \(drop --tie-band, --order-branch\)"):  # fmt: skip
+    searchers = "tvf-small, tvf-large, tvf-small-paper, tvf-large-paper"
+    with pytest.raises(TvfError, match=rf"gctn does not search; planner options need one of {searchers} "
+                       r"\(drop --tie-band, --order-branch\)"):  # fmt: skip
         make_policy(PolicySpec("gctn", tie_band=0.001, order_branch=True))  # not silently ignored
 
 
+@pytest.mark.parametrize("ours", ["gctn", "tvf-small", "tvf-large"])
+def test_the_paper_rules_methods_are_ours_with_every_paper_flag(ours):
+    paper = PolicySpec(f"{ours}-paper")
+    flags = PolicySpec(ours, goal_mask=False, refine_yaw=False, centre_picks=False)
+
+    def rules(spec):
+        return goal_mask_of(spec), refine_yaw_of(spec), centre_picks_of(spec)
+
+    assert rules(paper) == rules(flags) == (False, False, False) != rules(PolicySpec(ours))
+    assert get_method(paper.method).turns == 1 < get_method(ours).turns
+    assert get_method(paper.method).models == get_method(ours).models
+    assert paper_method(paper.method) == paper_method(ours) == ours  # the same published number
+    if ours != "gctn":  # the search exactly as the paper's: k-means proposals, no tie band, one threshold
+        k, depth = (2, 1) if ours == "tvf-small" else (3, 3)
+        assert planner_of(paper) == PlannerConfig(k=k, depth=depth)
+        assert planner_of(PolicySpec(paper.method, k=2)).k == 2  # overrides still apply
+    assert paper_method("oracle") is None and paper_method("my-method") is None
+
+
 def test_labels_and_unknown_methods():
-    assert [label(m) for m in METHODS] == ["oracle", "GCTN", "TVF-S", "TVF-L"]
+    assert [label(m) for m in METHODS] == [
+        "oracle", "GCTN", "TVF-S", "TVF-L", "GCTN, paper rules", "TVF-S, paper rules", "TVF-L, paper rules"
+    ]  # fmt: skip
     assert label("my-method") == "my-method"
-    with pytest.raises(TvfError, match="choose one of oracle, gctn, tvf-small, tvf-large"):
+    with pytest.raises(TvfError, match="choose one of oracle, gctn, tvf-small, tvf-large, gctn-paper, "):
         get_method("magic")
 
 

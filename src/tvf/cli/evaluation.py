@@ -19,13 +19,15 @@ class EvalCmd:
     Methods (the method registry): oracle (the expert, the ceiling), gctn (greedy GCTN), tvf-small (K=2,
     depth 1, the paper's proposals) and tvf-large (K=3, depth 3, NMS proposals over 3 picks, its first
     actions above --root-alpha 0.001; the paper's rule: --proposals kmeans --pick-branches 1 --root-alpha
-    0.01). Without --gctn / --vf the shipped lite weights are used.
+    0.01). gctn-paper, tvf-small-paper and tvf-large-paper are the three with the paper's rules: no turns
+    averaged, nothing read from the height maps, the paper's search (K-means proposals, no tie band).
+    Without --gctn / --vf the shipped lite weights are used.
     Seeds: the test range by default (never used for a choice); --seed-start 1 is the validation range.
     Example: tvf eval --method tvf-large --tasks unseen --episodes 20 --workers 2 --out eval/tvf-large
     """
 
     method: str = "gctn"
-    """oracle | gctn | tvf-small | tvf-large."""
+    """oracle | gctn | tvf-small | tvf-large | gctn-paper | tvf-small-paper | tvf-large-paper."""
     out: Path = Path("out/eval")
     """Output directory (re-running the same command resumes)."""
     k: int | None = None
@@ -156,7 +158,8 @@ class AblateCmd:
     depth: str = "1,2,3,4"
     """Search depths, comma-separated."""
     method: str = "tvf-large"
-    """tvf-small | tvf-large: the planner whose other settings (proposal rule, picks) every cell keeps."""
+    """tvf-small | tvf-large (or either with -paper): the planner whose other settings (proposal rule,
+    picks) every cell keeps."""
     planner: tyro.conf.OmitArgPrefixes[PlannerFlags] = PlannerFlags()
     """The models and the planner's other settings (default: the method's; picks at most K)."""
     tasks: str = "unseen"

@@ -27,6 +27,13 @@ NOT_RECORDED = ("workers", "envs_per_worker", "backend", "address", "stages", "s
 """Flags that may change between runs of the same experiment or sweep (how, not what, it computes)."""
 
 
+def merged_methods(recorded: str | None, given: str) -> str:
+    """The methods of a folder after a command: the recorded ones, then the new ones given. A later command
+    may name other methods: it evaluates them with the same models, so it adds to the experiment."""
+    names = [m.strip() for text in (recorded or "", given) for m in text.split(",") if m.strip()]
+    return ",".join(dict.fromkeys(names))
+
+
 @dataclass(frozen=True)
 class ExperimentConfig:
     """Everything an experiment depends on; stored in EXP/experiment.json and checked on resume."""
@@ -46,7 +53,8 @@ class ExperimentConfig:
     tasks: str = "all"
     """Tasks evaluated in closed loop: train | unseen | all | NAME[,NAME...]."""
     methods: str = "oracle,gctn,tvf-small,tvf-large"
-    """Methods evaluated, comma-separated."""
+    """Methods evaluated, comma-separated (the registry's; gctn-paper, tvf-small-paper and tvf-large-paper
+    run the paper's rules, for a row beside the paper's)."""
     episodes: int = 20
     """Closed-loop episodes per task and method (the paper: 20)."""
     seed: int = 0

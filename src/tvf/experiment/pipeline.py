@@ -27,8 +27,8 @@ from tvf.errors import StaleError, TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
-from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig
-from tvf.experiment.report import plural, write_report
+from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig, merged_methods
+from tvf.experiment.report import evaluated_methods, ordered_methods, plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
 from tvf.parallel import check_backend, import_ray
@@ -58,8 +58,10 @@ def _record_config(cfg: ExperimentConfig) -> None:
     # a folder made before a flag existed lacks it: it resumes when the flag keeps its (resolved) default
     defaults = json.loads(json.dumps(asdict(ExperimentConfig(out=cfg.out, preset=cfg.preset).resolved()),
                                      default=str))  # fmt: skip
-    # the folder's own path is recorded, not compared: a moved (or copied) experiment resumes
-    compared = [k for k in keep if recorded and k != "out"]
+    # the folder's own path is recorded, not compared: a moved (or copied) experiment resumes; other
+    # methods add to it
+    keep["methods"] = merged_methods(recorded.get("methods"), keep["methods"])
+    compared = [k for k in keep if recorded and k not in ("out", "methods")]
     changed = sorted(k for k in compared if recorded.get(k, defaults.get(k)) != keep[k])
     if changed:
         raise TvfError(
@@ -157,8 +159,10 @@ def stage_gifs(cfg: ExperimentConfig) -> None:
 
 
 def _summaries(cfg: ExperimentConfig) -> dict[str, dict]:
+    """The finished evaluations of this run's methods and of any other method evaluated in its folder
+    (a later command with other --methods adds columns to the report, it does not take any away)."""
     out = {}
-    for method in cfg.method_list():
+    for method in ordered_methods(dict.fromkeys([*cfg.method_list(), *evaluated_methods(cfg.out / "eval")])):
         path = cfg.out / "eval" / method / "summary.json"
         if path.exists():
             out[method] = json.loads(path.read_text())

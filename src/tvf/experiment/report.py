@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from tvf import __version__
 from tvf.evaluate.closed_loop import wilson
 from tvf.io import atomic_write_bytes
-from tvf.policies import METHODS, label
+from tvf.policies import METHODS, label, paper_method
 from tvf.seeds import seed_range
 from tvf.tasks import resolve_tasks
 
@@ -40,6 +40,12 @@ PAPER_TASKS_10_DEMOS = {"put-plane": {"gctn": 0.867, "tvf-large": 1.0},
                         "stack-building": {"gctn": 0.05, "tvf-large": 0.133}}  # fmt: skip
 """The paper's only per-task cells (10 demos per task)."""
 PAPER_LABEL = "paper (10 demos)"
+
+
+def paper_unseen(demos: int, method: str) -> float | None:
+    """The paper's unseen average at ``demos`` per task of the paper's method that ``method`` runs (with our
+    rules or the paper's); None where the paper has no such number."""
+    return PAPER_UNSEEN.get(demos, {}).get(paper_method(method) or "")
 
 
 def paper_note() -> str:
@@ -73,6 +79,12 @@ def ordered_methods(summaries: dict[str, dict]) -> list[str]:
     """Methods in report order: the known ones first (oracle, gctn, tvf-small, tvf-large), then the rest."""
     known = [m for m in METHOD_ORDER if m in summaries]
     return known + [m for m in summaries if m not in METHOD_ORDER]
+
+
+def evaluated_methods(eval_dir: Path) -> list[str]:
+    """The methods with a finished evaluation in ``eval_dir`` (``METHOD/summary.json``), in report order."""
+    found = {p.parent.name: {} for p in sorted(Path(eval_dir).glob("*/summary.json"))}
+    return ordered_methods(found)
 
 
 def task_groups(summaries: dict[str, dict]) -> dict[str, list[str]]:
@@ -162,9 +174,7 @@ def average_row(summaries: dict[str, dict], methods: list[str], name: str, tasks
 
 def paper_row(methods: list[str]) -> Row:
     """The paper's unseen averages (10 demos) under their methods, "–" elsewhere."""
-    cells = [
-        f"{100 * PAPER_UNSEEN_10_DEMOS[m]:.1f}%" if m in PAPER_UNSEEN_10_DEMOS else MISSING for m in methods
-    ]
+    cells = [MISSING if (v := paper_unseen(10, m)) is None else f"{100 * v:.1f}%" for m in methods]
     return ("paper", PAPER_LABEL, cells)
 
 
@@ -548,7 +558,8 @@ def success_chart(summaries: dict[str, dict], path: Path, shipped: dict | None =
         err = [[max(0.0, e["success"] - e["ci95"][0]) for _, e in pts],
                [max(0.0, e["ci95"][1] - e["success"]) for _, e in pts]]  # fmt: skip
         ax.bar([x for x, _ in pts], ys, width, yerr=err, capsize=2, ecolor="0.4", label=label(m))
-    reference_marks(ax, methods, width, PAPER_UNSEEN_10_DEMOS, "paper", "kD")
+    paper = {m: v for m in methods if (v := paper_unseen(10, m)) is not None}
+    reference_marks(ax, methods, width, paper, "paper", "kD")
     if shipped:
         values = {m: e["success"] for m in methods if (e := shipped_entry(shipped, m, "unseen")) is not None}
         reference_marks(ax, methods, width, values, "shipped", "ro")

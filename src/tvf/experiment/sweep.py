@@ -28,7 +28,7 @@ from pathlib import Path
 
 from tvf.data.generation import reuse_episodes
 from tvf.errors import TvfError
-from tvf.experiment.config import NOT_RECORDED, ExperimentConfig
+from tvf.experiment.config import NOT_RECORDED, ExperimentConfig, merged_methods
 from tvf.experiment.pipeline import check_experiment, data_plans, run_experiment
 from tvf.experiment.sweep_report import write_sweep_report
 from tvf.io import atomic_write_json, check_output_dir, read_json
@@ -105,7 +105,9 @@ def record_sweep(base: ExperimentConfig, demos: tuple[int, ...], seeds: tuple[in
     settings = shared_settings(base)
     defaults = shared_settings(ExperimentConfig(out=base.out, preset=base.preset).resolved())
     before = recorded.get("settings", {})
-    changed = sorted(k for k in settings if recorded and before.get(k, defaults.get(k)) != settings[k])
+    settings["methods"] = merged_methods(before.get("methods"), settings["methods"])  # other methods add
+    compared = [k for k in settings if recorded and k != "methods"]
+    changed = sorted(k for k in compared if before.get(k, defaults.get(k)) != settings[k])
     if changed:
         raise TvfError(
             f"{base.out} holds a sweep with other {', '.join(changed)}; use the same flags or another --out"

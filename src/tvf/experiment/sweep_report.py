@@ -26,15 +26,17 @@ from tvf.experiment.report import (
     PAPER_UNSEEN,
     Block,
     Row,
+    evaluated_methods,
     html_page,
     markdown_page,
     ordered_methods,
+    paper_unseen,
     plural,
     task_groups,
     task_row,
 )
 from tvf.io import atomic_write_bytes
-from tvf.policies import label
+from tvf.policies import label, paper_method
 
 Cells = dict[tuple[int, int], dict[str, dict]]
 """(demos, seed) -> method -> summary."""
@@ -139,10 +141,6 @@ def spread_cells(entry: Aggregate | None, n_seeds: int) -> list[str]:
     ]
 
 
-def paper_value(demos: int, method: str) -> float | None:
-    return PAPER_UNSEEN.get(demos, {}).get(method)
-
-
 def group_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[str], tasks: list[str],
                 paper: bool) -> tuple[list[str], list[Row]]:  # fmt: skip
     """One row per (demos, method) under a row per demo count; the paper's number last when ``paper``."""
@@ -154,7 +152,7 @@ def group_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[
         for m in methods:
             cells_ = spread_cells(aggregate(cells, n, m, tasks), len(seeds))
             if paper:
-                value = paper_value(n, m)
+                value = paper_unseen(n, m)
                 cells_.append(MISSING if value is None else pct(value))
             rows.append(("task", label(m), cells_))
     return header, rows
@@ -174,7 +172,8 @@ def task_cell(entry: Aggregate | None) -> str:
 def paper_task_cell(demos: int, task: str, methods: list[str]) -> str:
     """The paper's per-task numbers (10 demos only), ``GCTN 86.7%, TVF-L 100.0%``, or "–"."""
     values = PAPER_TASKS_10_DEMOS.get(task, {}) if demos == 10 else {}
-    return ", ".join(f"{label(m)} {pct(values[m])}" for m in methods if m in values) or MISSING
+    named = dict.fromkeys(p for m in methods if (p := paper_method(m)) in values)  # once per paper method
+    return ", ".join(f"{label(p)} {pct(values[p])}" for p in named) or MISSING
 
 
 def task_table(cells: Cells, demos: int, methods: list[str], groups: dict[str, list[str]]) -> list[Row]:
@@ -201,12 +200,26 @@ def cells_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[
     return rows
 
 
+def named_methods(settings: dict) -> list[str]:
+    """The methods the sweep's commands named (``settings["methods"]``), in report order."""
+    return ordered_methods(dict.fromkeys(m for m in settings.get("methods", "").split(",") if m))
+
+
+def sweep_methods(out: Path, demos: list[int], seeds: list[int], settings: dict) -> list[str]:
+    """The methods named, then every other method evaluated in some cell (a command with other --methods
+    adds rows to the report, it does not take any away)."""
+    found = [m for n in demos for s in seeds for m in evaluated_methods(out / f"demos-{n}/seed-{s}/eval")]
+    return ordered_methods(dict.fromkeys([*named_methods(settings), *found]))
+
+
 def sweep_blocks(cells: Cells, demos: list[int], seeds: list[int], settings: dict, commands: list[str],
-                 chart: str | None) -> list[Block]:  # fmt: skip
-    """The report's content in order (rendered alike as Markdown and HTML by tvf.experiment.report)."""
-    methods = ordered_methods({m: None for m in settings.get("methods", "").split(",") if m})
+                 chart: str | None, methods: list[str] | None = None) -> list[Block]:  # fmt: skip
+    """The report's content in order (rendered alike as Markdown and HTML by tvf.experiment.report), one
+    row per method of ``methods`` (default: those named in ``settings``)."""
+    named = named_methods(settings)
+    methods = methods or named
     groups = sweep_groups(cells)
-    done = sum(1 for n in demos for s in seeds if set(methods) <= set(cells.get((n, s), {})))
+    done = sum(1 for n in demos for s in seeds if set(named) <= set(cells.get((n, s), {})))
     meta = {"preset": settings.get("preset"), "demos per training task": ", ".join(map(str, demos)),
             "training seeds": ", ".join(map(str, seeds)),
             "episodes per task and method": settings.get("episodes"),
@@ -234,31 +247,50 @@ def sweep_blocks(cells: Cells, demos: list[int], seeds: list[int], settings: dic
     return blocks
 
 
+VARIANT_STYLES = (("-", "o"), (":", "s"), ("-.", "^"))
+"""Line and marker of the first, second, ... method that runs one paper method (ours, the paper's rules)."""
+
+
+def method_styles(methods: list[str]) -> dict[str, tuple[str, str, str]]:
+    """Colour, line style and marker per method: one colour per paper method (its paper curve shares it),
+    a line style per variant of it."""
+    families = list(dict.fromkeys(paper_method(m) or m for m in methods))
+    styles, seen = {}, {}
+    for m in methods:
+        family = paper_method(m) or m
+        k = seen[family] = seen.get(family, -1) + 1
+        styles[m] = (f"C{families.index(family)}", *VARIANT_STYLES[k % len(VARIANT_STYLES)])
+    return styles
+
+
 def success_vs_demos(cells: Cells, demos: list[int], methods: list[str], path: Path) -> Path:
     """Success against demos per task (log scale) for each task group with results: ours as the mean
     over seeds with the pooled Wilson interval and each seed as a dot, the paper's as dashed curves."""
     groups = sweep_groups(cells)
     panels = [s for s in ("unseen", "train") if groups[s]] or ["unseen"]
-    fig = Figure(figsize=(5.2 * len(panels), 4.0), dpi=110)
+    fig = Figure(figsize=(5.6 * len(panels), 5.0), dpi=110)
     FigureCanvasAgg(fig)
     shown = [m for m in methods if m != "oracle"] or methods
+    styles = method_styles(shown)
     for i, split in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), i + 1)
-        for j, m in enumerate(shown):
-            colour = f"C{j}"
+        drawn: set[str] = set()  # the paper's curves, once per paper method
+        for m in shown:
+            colour, line, marker = styles[m]
             entries = [(n, e) for n in demos if (e := aggregate(cells, n, m, groups[split])) is not None]
             if entries:
                 xs = [n for n, _ in entries]
                 ys = [e.mean for _, e in entries]
                 err = [[max(0.0, e.mean - e.ci95[0]) for _, e in entries],
                        [max(0.0, e.ci95[1] - e.mean) for _, e in entries]]  # fmt: skip
-                ax.errorbar(xs, ys, yerr=err, color=colour, marker="o", capsize=3, label=label(m))
+                ax.errorbar(xs, ys, yerr=err, color=colour, ls=line, marker=marker, capsize=3, label=label(m))
                 dots = [(n, v) for n, e in entries for v in e.values]
                 ax.plot([n for n, _ in dots], [v for _, v in dots], ".", color=colour, alpha=0.5, ms=4)
-            paper = sorted((n, v[m]) for n, v in PAPER_UNSEEN.items() if m in v)
-            if split == "unseen" and paper:
+            paper = sorted((n, v) for n in PAPER_UNSEEN if (v := paper_unseen(n, m)) is not None)
+            if split == "unseen" and paper and paper_method(m) not in drawn:
+                drawn.add(paper_method(m))
                 ax.plot([n for n, _ in paper], [v for _, v in paper], "--", marker="D", mfc="none",
-                        color=colour, alpha=0.8, label=f"{label(m)}, paper")  # fmt: skip
+                        color=colour, alpha=0.8, label=f"{label(paper_method(m))}, paper")  # fmt: skip
         ticks = sorted({*demos, *(PAPER_UNSEEN if split == "unseen" else ())})
         ax.set_xscale("log")
         ax.set_xticks(ticks, [str(t) for t in ticks])
@@ -267,7 +299,7 @@ def success_vs_demos(cells: Cells, demos: list[int], methods: list[str], path: P
         ax.set_ylabel("success (mean over seeds, Wilson 95%)")
         ax.set_title(GROUP_TITLES[split], fontsize=9)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=3, frameon=False)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -284,13 +316,13 @@ def write_sweep_report(out: Path, demos: list[int], seeds: list[int], settings: 
                        ) -> tuple[Path, Path]:  # fmt: skip
     """Write OUT/success-vs-demos.png (when a cell has results), OUT/sweep.md and OUT/sweep.html."""
     out = Path(out)
-    methods = ordered_methods({m: None for m in settings.get("methods", "").split(",") if m})
+    methods = sweep_methods(out, demos, seeds, settings)
     cells = read_cells(out, demos, seeds, methods)
     chart = None
     if cells:
         success_vs_demos(cells, demos, methods, out / CHART)
         chart = CHART
-    blocks = sweep_blocks(cells, demos, seeds, settings, commands, chart)
+    blocks = sweep_blocks(cells, demos, seeds, settings, commands, chart, methods)
     title = sweep_title(settings, demos, seeds)
     md, page = out / "sweep.md", out / "sweep.html"
     atomic_write_bytes(md, markdown_page(title, blocks).encode())

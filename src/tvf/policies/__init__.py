@@ -3,6 +3,7 @@
 from tvf.policies.base import BatchPolicy, Observation, Policy, act_all
 from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
 from tvf.policies.registry import (
+    LEARNED_METHODS,
     METHODS,
     PLANNER_METHODS,
     Method,
@@ -15,14 +16,15 @@ from tvf.policies.registry import (
     label,
     make_policy,
     mask_places_of,
+    paper_method,
     planner_of,
     policy_for,
     refine_yaw_of,
 )
 
 __all__ = [
-    "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation", "OraclePolicy",
-    "Policy", "PolicySpec", "TvfPolicy", "act_all", "centre_picks_of", "centred_share_of",
+    "LEARNED_METHODS", "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation",
+    "OraclePolicy", "Policy", "PolicySpec", "TvfPolicy", "act_all", "centre_picks_of", "centred_share_of",
     "forget_cached_policies", "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of",
-    "planner_of", "policy_for", "refine_yaw_of",
+    "paper_method", "planner_of", "policy_for", "refine_yaw_of",
 ]  # fmt: skip

@@ -118,6 +118,8 @@ class Method:
     """Its place turns corrected to the block yaws read from the height maps (:mod:`tvf.planning.yaw`)."""
     centre_picks: bool = False
     """Its GCTN's picks moved to the centres of the block faces under them (:mod:`tvf.models.pick_centre`)."""
+    paper: str | None = None
+    """The paper's method it runs, whose published numbers reports put beside it (None: none)."""
 
 
 def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -181,6 +183,11 @@ picks moved to the centres of the block faces ("Layered places, second round"), 
 place turns corrected to the block yaws read from the maps ("Turns read from the height maps"). The
 paper's: --goal-mask False --refine-yaw False --centre-picks False (docs/deviations.md P12-P14, P18)."""
 
+PAPER_SMALL = PlannerConfig(k=2, depth=1)
+"""The paper's TVF-Small: K = 2 proposals, one imagined step (tvf-facts §7)."""
+PAPER_LARGE = PlannerConfig(k=3, depth=3)
+"""The paper's TVF-Large: K = 3 proposals (k-means over the place map's top pixels), three steps."""
+
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
@@ -188,7 +195,7 @@ METHODS: dict[str, Method] = {
         # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
         # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
         # (docs/results.md); the paper's is --turns 1
-        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, **IMAGE_RULES),
+        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, **IMAGE_RULES, paper="gctn"),
         # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
         # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
         # paper's rule is --tie-band 0
@@ -200,6 +207,7 @@ METHODS: dict[str, Method] = {
             PlannerConfig(k=2, depth=1, turns_depth=1, tie_band=0.002),
             turns=4,
             **IMAGE_RULES,
+            paper="tvf-small",
         ),
         # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md); its
         # first actions from a lower threshold (three distinct root proposals in 96.7 % of decisions;
@@ -213,10 +221,18 @@ METHODS: dict[str, Method] = {
             PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1, root_alpha=0.001),
             turns=8,
             **IMAGE_RULES,
+            paper="tvf-large",
         ),
+        # the same three with the paper's planner rules and nothing read from the height maps (every
+        # Method default is the paper's), so both rows can be compared with the paper's
+        Method("gctn-paper", "GCTN, paper rules", _gctn, models=("gctn",), paper="gctn"),
+        Method("tvf-small-paper", "TVF-S, paper rules", _tvf, ("gctn", "vf"), PAPER_SMALL, paper="tvf-small"),
+        Method("tvf-large-paper", "TVF-L, paper rules", _tvf, ("gctn", "vf"), PAPER_LARGE, paper="tvf-large"),
     )
 }
 PLANNER_METHODS = tuple(name for name, m in METHODS.items() if m.planner is not None)
+LEARNED_METHODS = tuple(name for name, m in METHODS.items() if not m.needs_env)
+"""The methods that act from images alone (every one but the oracle)."""
 _CACHE: dict[PolicySpec, Policy] = {}
 
 
@@ -225,6 +241,11 @@ def get_method(name: str) -> Method:
     if name not in METHODS:
         raise TvfError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
     return METHODS[name]
+
+
+def paper_method(name: str) -> str | None:
+    """The paper's method that ``name`` runs (for its published numbers); None for others and unknowns."""
+    return METHODS[name].paper if name in METHODS else None
 
 
 def label(name: str) -> str:
