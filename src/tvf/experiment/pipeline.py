@@ -28,7 +28,7 @@ from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
 from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig, merged_methods
-from tvf.experiment.report import evaluated_methods, ordered_methods, plural, write_report
+from tvf.experiment.report import evaluated_methods, plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
 from tvf.parallel import check_backend, import_ray
@@ -159,14 +159,10 @@ def stage_gifs(cfg: ExperimentConfig) -> None:
 
 
 def _summaries(cfg: ExperimentConfig) -> dict[str, dict]:
-    """The finished evaluations of this run's methods and of any other method evaluated in its folder
-    (a later command with other --methods adds columns to the report, it does not take any away)."""
-    out = {}
-    for method in ordered_methods(dict.fromkeys([*cfg.method_list(), *evaluated_methods(cfg.out / "eval")])):
-        path = cfg.out / "eval" / method / "summary.json"
-        if path.exists():
-            out[method] = json.loads(path.read_text())
-    return out
+    """The finished evaluations of every method evaluated in the folder, this run's and others' (a later
+    command with other --methods adds columns to the report, it does not take any away)."""
+    evals = cfg.out / "eval"
+    return {m: json.loads((evals / m / "summary.json").read_text()) for m in evaluated_methods(evals)}
 
 
 def _meta(cfg: ExperimentConfig) -> dict:
