@@ -196,7 +196,7 @@ def test_eval_records_the_resolved_goal_mask_and_refuses_to_resume_an_unmasked_f
     meta_path = tmp_path / "e" / "eval.json"
     meta = json.loads(meta_path.read_text())
     assert meta["goal_mask"] is True  # the GCTN's default, resolved
-    for key in ("goal_mask", "mask_places", "centre_picks"):  # a folder from before the flags: unmasked
+    for key in ("goal_mask", "mask_places", "centre_picks", "resolved"):  # a folder from before the flags
         del meta[key]
     meta_path.write_text(json.dumps(meta))
     code, _, err = run(capsys, "eval", "--method", "gctn", *args, "--out", str(tmp_path / "e"))

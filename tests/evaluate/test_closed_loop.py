@@ -63,3 +63,40 @@ def test_a_resume_is_keyed_on_the_weights_content_not_their_path(tmp_path, capsy
     (out / "eval.json").write_text(json.dumps(meta))
     evaluate(spec, ["stack-stair"], 1, 1, 1, out)
     assert "resuming: 1 of 1" in capsys.readouterr().out
+
+
+def test_a_resume_is_refused_when_a_methods_default_changed_since(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from tvf.models.checkpoint import save_checkpoint
+    from tvf.models.gctn import GCTN
+    from tvf.models.presets import SMOKE
+    from tvf.policies import registry
+
+    weights, out = tmp_path / "gctn.pt", tmp_path / "eval"
+    save_checkpoint(weights, GCTN(SMOKE, seed=0))
+    spec = PolicySpec("gctn", gctn=str(weights))  # turns left to the method: recorded resolved
+    evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+    recorded = json.loads((out / "eval.json").read_text())
+    assert recorded["turns"] is None and recorded["resolved"]["turns"] == registry.METHODS["gctn"].turns
+    changed = replace(registry.METHODS["gctn"], turns=1)
+    monkeypatch.setitem(registry.METHODS, "gctn", changed)  # a later tvf whose default is another
+    with pytest.raises(TvfError, match=r"other turns \(4 → 1\).*--restart"):
+        evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+    del recorded["resolved"]  # a folder from before the record resumes on the spec's own values
+    (out / "eval.json").write_text(json.dumps(recorded))
+    evaluate(spec, ["stack-stair"], 1, 1, 1, out)
+
+
+def test_the_resolved_settings_fill_in_the_planner_and_name_a_changed_default(tmp_path, monkeypatch):
+    from tvf.evaluate.closed_loop import _changed_settings
+    from tvf.policies import resolved_settings
+
+    large = resolved_settings(PolicySpec("tvf-large"))
+    assert large["k"] == 3 and large["proposals"] == "nms" and large["turns"] == 8 and "batched" not in large
+    assert resolved_settings(PolicySpec("tvf-large", k=2))["pick_branches"] == 2  # a smaller K, fewer picks
+    assert resolved_settings(PolicySpec("oracle")) == {}
+    meta = {"method": "tvf-large", "resolved": large, "weights": {}}
+    old = tmp_path / "eval.json"
+    old.write_text(json.dumps({**meta, "resolved": {**large, "depth": 2, "gone": 1}}))
+    assert _changed_settings(old, meta) == ["depth (2 → 3)"]  # keys only one side has are not changes

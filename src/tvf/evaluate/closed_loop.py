@@ -28,6 +28,7 @@ from tvf.policies import (
     mask_places_of,
     planner_of,
     refine_yaw_of,
+    resolved_settings,
 )
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
@@ -127,6 +128,9 @@ def evaluate(
     meta["root_alpha"] = planner_of(spec).root_alpha if get_method(spec.method).planner else None
     # likewise TVF-S's tie band (None: 0, the paper's rule, as folders from before it recorded)
     meta["tie_band"] = (planner_of(spec).tie_band or None) if get_method(spec.method).planner else None
+    # and everything the method acts with, defaults filled in, so that a default changed since cannot
+    # resume a folder under other rules (folders from before this record are trusted on the keys above)
+    meta["resolved"] = resolved_settings(spec)
     meta["weights"] = weights_hashes(spec)
     if not isinstance(envs, SimEnvFactory):  # another world: recorded, so a resume cannot mix the two
         meta["env"] = f"{type(envs).__module__}.{type(envs).__qualname__}"
@@ -210,9 +214,17 @@ def weights_hashes(spec: PolicySpec) -> dict[str, str]:
 def _changed_settings(meta_path: Path, meta: dict) -> list[str]:
     """The settings in which a recorded evaluation differs from ``meta`` (settings added since it was made
     count as None, the value that keeps their old behaviour; a folder from before weights were hashed is
-    trusted on its paths). Changed weights are named by kind: ``gctn weights (content ab12… → cd34…)``."""
+    trusted on its paths). Changed weights are named by kind: ``gctn weights (content ab12… → cd34…)``;
+    a setting the spec left to its method whose default changed, by its values: ``turns (4 → 1)``. A
+    folder from before settings were resolved is trusted on the spec's own values."""
     old = read_json(meta_path, "restore it or choose another --out")
-    changed = sorted(k for k in set(old) | set(meta) if k != "weights" and old.get(k) != meta.get(k))
+    nested = ("weights", "resolved")
+    changed = sorted(k for k in set(old) | set(meta) if k not in nested and old.get(k) != meta.get(k))
+    was, now_resolved = old.get("resolved"), meta["resolved"]
+    if was is not None:  # settings added since are new choices whose default keeps the old behaviour
+        for key in sorted(set(was) & set(now_resolved)):
+            if was[key] != now_resolved[key] and key not in changed:
+                changed.append(f"{key} ({was[key]!r} → {now_resolved[key]!r})")
     before, now = old.get("weights"), meta["weights"]
     if before is not None:
         for kind in sorted(set(before) | set(now)):

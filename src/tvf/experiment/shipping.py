@@ -29,8 +29,9 @@ from tvf.weights import MODEL_CARD, PROVENANCE, config_path, sha256_file, shippe
 
 STALE = ("results", "evaluations")
 """Provenance entries that measured the former pair of models: dropped when a model is replaced."""
-EVAL_KEYS = ("method", "gctn", "vf", "episodes", "seed_start", "step_slack", "weights")
-"""eval.json fields recorded on their own; the others are the evaluation's planner settings."""
+EVAL_KEYS = ("method", "gctn", "vf", "episodes", "seed_start", "step_slack", "weights", "resolved")
+"""eval.json fields recorded on their own (``resolved``: every setting, the method's defaults filled in);
+the others are the evaluation's planner settings."""
 
 
 def _folder(folder: str | Path | None) -> Path:

@@ -20,11 +20,13 @@ from tvf.policies.registry import (
     planner_of,
     policy_for,
     refine_yaw_of,
+    resolved_settings,
+    turns_of,
 )
 
 __all__ = [
     "LEARNED_METHODS", "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation",
     "OraclePolicy", "Policy", "PolicySpec", "TvfPolicy", "act_all", "centre_picks_of", "centred_share_of",
     "forget_cached_policies", "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of",
-    "paper_method", "planner_of", "policy_for", "refine_yaw_of",
+    "paper_method", "planner_of", "policy_for", "refine_yaw_of", "resolved_settings", "turns_of",
 ]  # fmt: skip

@@ -6,7 +6,7 @@ Every command, the report and the experiment read this table; adding a method is
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import torch
 
@@ -133,10 +133,14 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
 def _load_gctn(spec: PolicySpec):
     """The spec's GCTN, goal-masked or not, its picks centred or not, and symmetrised over its turns (the
     method's unless the spec sets them)."""
-    turns = spec.turns if spec.turns is not None else get_method(spec.method).turns
     gctn = load_trained(spec.gctn, "gctn")
     gctn = goal_masked(gctn, goal_mask_of(spec), mask_places_of(spec), centred_share_of(spec))
-    return symmetrized(centring_picks(gctn, centre_picks_of(spec)), turns)
+    return symmetrized(centring_picks(gctn, centre_picks_of(spec)), turns_of(spec))
+
+
+def turns_of(spec: PolicySpec) -> int:
+    """The quarter turns ``spec``'s GCTN is averaged over: the spec's choice, else its method's default."""
+    return spec.turns if spec.turns is not None else get_method(spec.method).turns
 
 
 def goal_mask_of(spec: PolicySpec) -> bool:
@@ -163,6 +167,24 @@ def refine_yaw_of(spec: PolicySpec) -> bool:
 def centre_picks_of(spec: PolicySpec) -> bool:
     """Whether ``spec``'s picks move to their blocks' face centres: the spec's choice, else its method's."""
     return spec.centre_picks if spec.centre_picks is not None else get_method(spec.method).centre_picks
+
+
+def resolved_settings(spec: PolicySpec) -> dict:
+    """Every setting ``spec`` acts with, its method's defaults filled in where the spec leaves them (None):
+    the GCTN's turns and image rules, and a TVF method's whole planner (less ``batched``, which changes
+    the cost, not the actions). Two specs with the same models and the same settings act alike, so an
+    evaluation records these to refuse a resume under a method whose defaults changed since."""
+    method = get_method(spec.method)
+    settings: dict = {}
+    if "gctn" in method.models:
+        settings.update(
+            turns=turns_of(spec), goal_mask=goal_mask_of(spec), mask_places=mask_places_of(spec),
+            centred_share=centred_share_of(spec), refine_yaw=refine_yaw_of(spec),
+            centre_picks=centre_picks_of(spec),
+        )  # fmt: skip
+    if method.planner is not None:
+        settings.update({k: v for k, v in asdict(planner_of(spec)).items() if k != "batched"})
+    return settings
 
 
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
