@@ -8,6 +8,7 @@ from tvf.errors import TvfError
 from tvf.experiment.config import ExperimentConfig
 from tvf.experiment.pipeline import run_experiment, ship_weights, train_config
 from tvf.experiment.shipping import model_card
+from tvf.io import read_jsonl
 from tvf.models.checkpoint import load_model
 from tvf.weights import sha256_file, shipped_files
 
@@ -47,6 +48,9 @@ def test_every_stage_writes_its_outputs(experiment):
     )
     assert (out / "weights" / "README.md").read_text() == model_card(provenance)
     assert "TVF-L (the experiment) | test (odd, from 1 000 001) | 1 |" in model_card(provenance)
+    stages = [r["stage"] for r in read_jsonl(out / "cost.jsonl")]  # every stage's cost, in order
+    assert stages == ["data", "train", "eval-vf", "eval", "gifs", "report", "weights"]
+    assert "| cost so far | " in report.read_text() and "train " in report.read_text()  # those before it
 
 
 def test_ship_copies_the_weights_folder_into_the_package(experiment, tmp_path):

@@ -24,7 +24,7 @@ from tvf.evaluate.closed_loop import evaluate
 from tvf.experiment import pipeline
 from tvf.experiment.config import ExperimentConfig
 from tvf.experiment.sweep import cell_dir, data_dir, run_experiments, sweep_values
-from tvf.io import atomic_write_json, temp_path
+from tvf.io import atomic_write_json, read_jsonl, temp_path
 from tvf.policies import PolicySpec
 
 TRAIN_TASK, TEST_TASK = "stack-tower", "stack-stair"
@@ -129,7 +129,7 @@ def base_config(out: Path, **kw) -> ExperimentConfig:
 def snapshot(out: Path) -> dict[str, bytes]:
     """Every file under ``out`` but the reports and the records of the commands -> its content."""
     skip = {"sweep.md", "sweep.html", "success-vs-demos.png", "report.md", "report.html", "success.png",
-            "experiment.json", "sweep.json"}  # fmt: skip
+            "experiment.json", "sweep.json", "cost.jsonl"}  # fmt: skip
     return {
         str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name not in skip
     }
@@ -187,6 +187,24 @@ def test_the_interrupted_sweep_resumes_without_redoing_work(sweep, stand_ins):
     run_experiments(base_config(out), (1, 2), (0, 1))  # a third run: nothing left to do
     assert stand_ins.trained == cells and snapshot(out) == before
     assert all(n == 0 for _, _, n in stand_ins.generated[n_generated:])
+
+
+def test_every_stage_run_is_costed_and_the_report_sums_the_cells(sweep):
+    out, report, _ = sweep
+    interrupted = read_jsonl(cell_dir(out, 2, 0) / "cost.jsonl")
+    train = [r["finished"] for r in interrupted if r["stage"] == "train"]
+    assert train == [False, True, True]  # stopped, finished on the re-run, skipped on the third run
+    for demos in (1, 2):
+        for seed in (0, 1):
+            stages = {r["stage"] for r in read_jsonl(cell_dir(out, demos, seed) / "cost.jsonl")}
+            assert stages == set(STAGES.split(","))
+    md = report.read_text()
+    header = md[md.index("## Cost") :].splitlines()[4]
+    assert header.startswith("| cell | data (CPU h) | train (CPU h) |") and header.endswith("| wall h |")
+    total = next(line for line in md.splitlines() if line.startswith("| *all cells* |"))
+    cells = [line for line in md[md.index("## Cost") :].splitlines() if line.startswith("| demos-")][:4]
+    per_cell = [float(line.strip("|").split(" | ")[-2]) for line in cells]
+    assert float(total.strip("|").split(" | ")[-2]) == pytest.approx(sum(per_cell), abs=0.011)
 
 
 def test_the_sweep_report_reads_every_cell(sweep):

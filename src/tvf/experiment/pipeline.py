@@ -28,6 +28,7 @@ from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
 from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig, merged_methods
+from tvf.experiment.cost import costed, stage_costs
 from tvf.experiment.report import evaluated_methods, plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
@@ -174,6 +175,11 @@ def _meta(cfg: ExperimentConfig) -> dict:
     commands = _read_recorded(cfg.out / "experiment.json").get("commands", [])
     if commands:
         meta["commands"] = "; ".join(commands)
+    costs = stage_costs(cfg.out)  # the report stage's own run is recorded after it
+    if costs:
+        each = ", ".join(f"{stage} {c['cpu_s'] / 3600:.2f}" for stage, c in costs.items())
+        cpu, wall = (sum(c[key] for c in costs.values()) / 3600 for key in ("cpu_s", "wall_s"))
+        meta["cost so far"] = f"{cpu:.2f} CPU h in {wall:.2f} h of wall time ({each}; cost.jsonl)"
     return meta
 
 
@@ -238,7 +244,8 @@ def run_experiment(cfg: ExperimentConfig) -> Path:
     _record_config(cfg)
     for stage in stages:
         _say(f"stage {stage}")
-        RUNNERS[stage](cfg)
+        with costed(cfg.out, stage):  # EXP/cost.jsonl: wall and CPU time, also of an interrupted stage
+            RUNNERS[stage](cfg)
     if cfg.ship:
         ship_weights(cfg.out / "weights", WEIGHTS_DIR, cfg.preset)
         _say(f"shipped {cfg.out / 'weights'} to {WEIGHTS_DIR}")

@@ -5,7 +5,8 @@ Input: each cell's summaries, ``OUT/demos-N/seed-S/eval/METHOD/summary.json`` (a
 seed's success is its group average (the mean per-task success, as in the experiment report); the
 report gives the mean of the seeds' values, their standard deviation (n - 1 in the denominator; none
 for one seed) and range, and the Wilson 95% interval of every episode of the group over all seeds
-pooled. Cells not finished are "–", so the report can be re-made at any time.
+pooled. Cells not finished are "–", so the report can be re-made at any time. Each cell's
+``cost.jsonl`` (:mod:`tvf.experiment.cost`) gives the cost table: CPU hours per stage and cell.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from tvf.evaluate.closed_loop import wilson
+from tvf.experiment.config import STAGES
+from tvf.experiment.cost import stage_costs
 from tvf.experiment.report import (
     MISSING,
     PAPER_TASKS_10_DEMOS,
@@ -49,6 +52,12 @@ SPREAD_NOTE = (
     "number of episodes. \\* a seed was evaluated on part of the group only."
 )
 CELLS_NOTE = "Each cell's unseen-task average per method (its own report.md has the rest)."
+COST_NOTE = (
+    "CPU hours per stage of each cell (its processes' and their workers' user + system time, summed over "
+    "every run of the stage, resumed pieces and interrupted ones included), then the cell's total and its "
+    "wall-clock hours; from each cell's cost.jsonl. A run killed without notice (SIGKILL), work on other "
+    "machines (--backend ray) and runs from before tvf kept the log are not counted (–: none recorded)."
+)
 TASK_NOTE = (
     "Mean over seeds, (min–max over seeds) when there are several, [Wilson 95% interval of the pooled "
     "episodes], in percent."
@@ -200,6 +209,34 @@ def cells_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[
     return rows
 
 
+def hours(seconds: float | None) -> str:
+    return "–" if seconds is None else f"{seconds / 3600:.2f}"
+
+
+def cost_table(out: Path, demos: list[int], seeds: list[int]) -> list[Row]:
+    """CPU hours per stage of every cell that has a cost log, its total and wall hours, and a total row
+    over those cells ([] when none has one)."""
+    rows: list[Row] = []
+    total = dict.fromkeys((*STAGES, "cpu", "wall"), 0.0)
+    for n in demos:
+        for s in seeds:
+            costs = stage_costs(Path(out) / f"demos-{n}" / f"seed-{s}")
+            if not costs:
+                continue
+            cpu = sum(c["cpu_s"] for c in costs.values())
+            wall = sum(c["wall_s"] for c in costs.values())
+            for stage, c in costs.items():
+                total[stage] = total.get(stage, 0.0) + c["cpu_s"]
+            total["cpu"] += cpu
+            total["wall"] += wall
+            cells = [hours(costs[st]["cpu_s"]) if st in costs else "–" for st in STAGES]
+            rows.append(("task", f"demos-{n}/seed-{s}", [*cells, hours(cpu), hours(wall)]))
+    if rows:
+        cells = [hours(total[st]) for st in STAGES]
+        rows.append(("average", "all cells", [*cells, hours(total["cpu"]), hours(total["wall"])]))
+    return rows
+
+
 def named_methods(settings: dict) -> list[str]:
     """The methods the sweep's commands named (``settings["methods"]``), in report order."""
     return ordered_methods(dict.fromkeys(m for m in settings.get("methods", "").split(",") if m))
@@ -213,9 +250,11 @@ def sweep_methods(out: Path, demos: list[int], seeds: list[int], settings: dict)
 
 
 def sweep_blocks(cells: Cells, demos: list[int], seeds: list[int], settings: dict, commands: list[str],
-                 chart: str | None, methods: list[str] | None = None) -> list[Block]:  # fmt: skip
+                 chart: str | None, methods: list[str] | None = None, out: Path | None = None
+                 ) -> list[Block]:  # fmt: skip
     """The report's content in order (rendered alike as Markdown and HTML by tvf.experiment.report), one
-    row per method of ``methods`` (default: those named in ``settings``)."""
+    row per method of ``methods`` (default: those named in ``settings``); with the sweep's folder
+    ``out``, also what each cell cost."""
     named = named_methods(settings)
     methods = methods or named
     groups = sweep_groups(cells)
@@ -239,6 +278,10 @@ def sweep_blocks(cells: Cells, demos: list[int], seeds: list[int], settings: dic
             blocks += [("h2", title), ("note", note), ("table", header, rows)]
     rows = cells_table(cells, demos, seeds, methods, groups["unseen"])
     blocks += [("h2", "Cells"), ("note", CELLS_NOTE), ("table", ["cell", *(label(m) for m in methods)], rows)]
+    costs = cost_table(out, demos, seeds) if out is not None else []
+    if costs:
+        header = ["cell", *(f"{st} (CPU h)" for st in STAGES), "total CPU h", "wall h"]
+        blocks += [("h2", "Cost"), ("note", COST_NOTE), ("table", header, costs)]
     for n in demos:
         if any(d == n for d, _ in cells):
             header = ["task", *(label(m) for m in methods), "paper"]
@@ -322,7 +365,7 @@ def write_sweep_report(out: Path, demos: list[int], seeds: list[int], settings: 
     if cells:
         success_vs_demos(cells, demos, methods, out / CHART)
         chart = CHART
-    blocks = sweep_blocks(cells, demos, seeds, settings, commands, chart, methods)
+    blocks = sweep_blocks(cells, demos, seeds, settings, commands, chart, methods, out)
     title = sweep_title(settings, demos, seeds)
     md, page = out / "sweep.md", out / "sweep.html"
     atomic_write_bytes(md, markdown_page(title, blocks).encode())
