@@ -15,8 +15,12 @@ adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+c
 ``nms+picks3+turns8+tdepth1+mask+rootalpha0.001``, with the block-centred picks and layered places:
 ``...+placeslayered+centre``).
 
+``--vfs PATH[,PATH]`` also times every ``--rules`` entry of the ``lite`` preset with each of these VFs (a run
+folder, .pt or .safetensors) in place of the shipped one, in the same run (``tvf-large/RULE/vf:PATH``):
+the side-by-side measurement a new VF is judged by.
+
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
-[--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3]
+[--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3] [--vfs runs/vf]
 """
 
 from __future__ import annotations
@@ -104,8 +108,12 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
     return fields, turns, places, centre
 
 
-def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str]) -> dict:
+def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str],
+          vfs: tuple[str, ...] = ()) -> dict:  # fmt: skip
     gctn, vf, shipped = load_models(preset_name, device)
+    from tvf.models.checkpoint import load_trained
+
+    others = {f"vf:{path}": load_trained(path, "vf", device) for path in vfs} if preset_name == "lite" else {}
     current, goal = (x.to(device) for x in images)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     out: dict = {"weights": "shipped" if shipped else "random"}
@@ -126,9 +134,11 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         fields, turns, places, centre = rule_config(rule)
         masked = goal_masked(gctn, places is not None, places or "gap")
         model = symmetrized(centring_picks(masked, centre), turns)
-        search = TreeSearch(model, vf, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
-        seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
-        out[f"tvf-large/{rule}"] = {"batched_s": seconds, "counts": search.search(current, goal).counts}
+        for suffix, foresight in (("", vf), *((f"/{name}", other) for name, other in others.items())):
+            search = TreeSearch(model, foresight, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
+            seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
+            counts = search.search(current, goal).counts
+            out[f"tvf-large/{rule}{suffix}"] = {"batched_s": seconds, "counts": counts}
     return out
 
 
@@ -142,14 +152,16 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--task", default="stack-pyramid")
     parser.add_argument("--rules", default="", help="proposal rules timed side by side (kmeans,nms+picks3)")
+    parser.add_argument("--vfs", default="", help="other VFs timed with every rule of lite, side by side")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     images = first_observation(args.task)
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     names = args.presets.split(",") + (["paper"] if args.paper else [])
     rules = [r for r in args.rules.split(",") if r]
+    vfs = tuple(v for v in args.vfs.split(",") if v)
     results = {
-        str(device): {name: bench(name, device, images, args.repeats, rules) for name in names}
+        str(device): {name: bench(name, device, images, args.repeats, rules, vfs) for name in names}
         for device in devices
     }
     print(json.dumps({"planner": results, "threads": args.threads, "task": args.task}, indent=1))

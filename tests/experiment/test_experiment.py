@@ -128,3 +128,28 @@ def test_changed_data_is_named_and_restart_retrains_and_reevaluates(experiment, 
     after = json.loads((copy.out / "eval" / "gctn" / "eval.json").read_text())
     assert after["weights"]["gctn"] != json.loads(before)["weights"]["gctn"]  # evaluated with the new weights
     assert after["weights"]["gctn"] == sha256_file(copy.out / "gctn" / "checkpoints" / "last.pt")
+
+
+def test_vf_tune_fine_tunes_the_vf_and_every_later_stage_uses_it(tmp_path):
+    from tvf.experiment.pipeline import model_dir, tune_config
+    from tvf.train.registry import VF_TUNES
+
+    cfg = ExperimentConfig(
+        out=tmp_path, demos=1, preset="smoke", test_demos=1, train_tasks="stack-tower", tasks="stack-stair",
+        methods="gctn", episodes=1, workers=1, gifs=0, vf_tune=True, stages="data,train,eval-vf,weights",
+    )  # fmt: skip
+    run_experiment(cfg)
+    tuned = json.loads((tmp_path / "vf-tuned" / "config.json").read_text())
+    phase, head = VF_TUNES["smoke"]
+    assert tuned["init"]["sha256"] == sha256_file(tmp_path / "vf" / "checkpoints" / "last.pt")  # from EXP/vf
+    assert tuned["preset"]["vf_head"] == head
+    assert tuned["loss"]["rollout"] == phase.vf_rollout and tuned["loss"]["changed_weight"] == 20.0
+    assert tune_config(cfg.resolved()).init == tmp_path / "vf"
+    assert model_dir(cfg, "vf") == tmp_path / "vf-tuned" and model_dir(cfg, "gctn") == tmp_path / "gctn"
+    shipped = json.loads((tmp_path / "weights" / "provenance.json").read_text())["models"]["vf"]["train"]
+    assert shipped["out"] == str(tmp_path / "vf-tuned") and shipped["init"] == str(tmp_path / "vf")
+    assert json.loads((tmp_path / "eval-vf" / "metrics.json").read_text())
+    with pytest.raises(TvfError, match="no fine-tuning recipe for preset 'paper'"):
+        run_experiment(ExperimentConfig(out=tmp_path / "p", preset="paper", vf_tune=True))
+    with pytest.raises(TvfError, match="other vf_tune"):  # a folder's VF phases are part of the experiment
+        run_experiment(ExperimentConfig(**{**cfg.__dict__, "vf_tune": False, "stages": "report"}))

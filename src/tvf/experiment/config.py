@@ -89,6 +89,11 @@ class ExperimentConfig:
     vf_rollout: int | None = None
     """VF rollout loss horizon: each training sample is this many consecutive steps, each predicted from
     the VF's own prediction (1: the reference's one-step loss; default: the preset's; docs/models.md)."""
+    vf_tune: bool = False
+    """After the VF's recipe, fine-tune it with the preset's second phase (lite: 3000 steps from its
+    weights, lr 2e-4 cosine, three-step rollout loss, changed pixels weighted 21 times, the local head;
+    tvf.train.registry.VF_TUNES) into EXP/vf-tuned, the VF every later stage uses. The shipped lite VF
+    is made so (make reproduce); without it, the reference's one-phase VF."""
     workers: int = 2
     """Parallel processes for data generation and evaluation (with --backend ray: Ray tasks at once)."""
     envs_per_worker: int = 1

@@ -5,6 +5,7 @@ Stages (each one skips or resumes what is already in EXP):
 1. ``data``: demonstrations, train split (``demos`` per training task) and test split (validation,
    foresight evaluation) into ``EXP/data`` (or an existing dataset given with ``--data``);
 2. ``train``: GCTN into ``EXP/gctn`` and VF into ``EXP/vf`` (training runs resume from their last checkpoint);
+   with ``--vf-tune`` the VF is then fine-tuned into ``EXP/vf-tuned``, the VF of every later stage;
 3. ``eval-vf``: prediction quality into ``EXP/eval-vf``;
 4. ``eval``: closed loop for every method into ``EXP/eval/METHOD`` (episodes.jsonl resumes);
 5. ``gifs``: one TVF-L episode per unseen task beside its imagined best paths, ``EXP/gifs/TASK.gif``;
@@ -35,7 +36,7 @@ from tvf.io import atomic_write_json, check_output_dir, read_json
 from tvf.parallel import check_backend, import_ray
 from tvf.policies import PolicySpec, label, make_policy
 from tvf.sim.factory import sim_env
-from tvf.train.registry import MODELS, with_recipe
+from tvf.train.registry import MODELS, RECIPE_FIELDS, vf_tune, with_recipe
 from tvf.train.trainer import TrainConfig, check_config, train
 from tvf.viz.recorded import episode_gif
 from tvf.weights import PROVENANCE, WEIGHTS_DIR
@@ -104,22 +105,41 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
     return replace(tc, val_every=every, checkpoint_every=every, log_every=max(1, min(25, tc.steps)))
 
 
+def tune_config(cfg: ExperimentConfig) -> TrainConfig:
+    """The VF's second phase (``--vf-tune``): the preset's tuning recipe and head, from EXP/vf's weights,
+    into EXP/vf-tuned."""
+    phase, head = vf_tune(cfg.preset)
+    base = train_config(cfg, "vf")
+    every = max(1, phase.steps // 10)
+    return replace(base, out=cfg.out / "vf-tuned", init=cfg.out / "vf", vf_head=head,
+                   **{f: getattr(phase, f) for f in RECIPE_FIELDS}, val_every=every, checkpoint_every=every,
+                   log_every=max(1, min(25, phase.steps)))  # fmt: skip
+
+
+def model_dir(cfg: ExperimentConfig, kind: str) -> Path:
+    """The run folder of the model every stage after training uses (the tuned VF with ``--vf-tune``)."""
+    return cfg.out / ("vf-tuned" if kind == "vf" and cfg.vf_tune else kind)
+
+
 def stage_train(cfg: ExperimentConfig) -> None:
-    for kind, spec in MODELS.items():
-        tc = train_config(cfg, kind)
+    runs = [(kind, train_config(cfg, kind)) for kind in MODELS]
+    if cfg.vf_tune:
+        runs.append(("vf", tune_config(cfg)))
+    for kind, tc in runs:
+        spec = MODELS[kind]
         _say(f"training {kind}: {tc.steps} steps, batch {tc.batch}, lr {tc.lr:g} ({tc.schedule}) -> {tc.out}")
         train(tc, spec.job(tc, spec.sampler_class))
 
 
 def stage_eval_vf(cfg: ExperimentConfig) -> None:
     device = str(pick_device(cfg.device))
-    evaluate_foresight(cfg.out / "vf", cfg.data_root, cfg.out / "eval-vf", max_episodes=cfg.test_demos,
+    evaluate_foresight(model_dir(cfg, "vf"), cfg.data_root, cfg.out / "eval-vf", max_episodes=cfg.test_demos,
                        horizon=cfg.vf_horizon, tasks=cfg.task_table(), device=device)  # fmt: skip
 
 
 def method_spec(cfg: ExperimentConfig, method: str) -> PolicySpec:
     """The experiment's own models under ``method``."""
-    return PolicySpec(method, str(cfg.out / "gctn"), str(cfg.out / "vf"), device=cfg.device)
+    return PolicySpec(method, str(model_dir(cfg, "gctn")), str(model_dir(cfg, "vf")), device=cfg.device)
 
 
 def stage_eval(cfg: ExperimentConfig) -> None:
@@ -197,7 +217,7 @@ def stage_weights(cfg: ExperimentConfig) -> Path:
     out = cfg.out / "weights"
     atomic_write_json(out / PROVENANCE, {"experiment": _read_recorded(cfg.out / "experiment.json")})
     for kind in MODELS:
-        ship_model(cfg.out / kind, kind, out)
+        ship_model(model_dir(cfg, kind), kind, out)
     record = read_json(out / PROVENANCE, "run the weights stage again")
     table = cfg.task_table()
     summaries = _summaries(cfg)
@@ -221,6 +241,8 @@ def _check_recipes(cfg: ExperimentConfig) -> None:
             check_config(train_config(cfg, kind))
         except TvfError as exc:
             raise TvfError(f"{kind} training: {exc} (set by the experiment's --{kind}-* flags)") from None
+    if cfg.vf_tune:
+        vf_tune(cfg.preset)  # a preset without a tuning phase: the one-line error, before any work
 
 
 def check_experiment(cfg: ExperimentConfig) -> ExperimentConfig:

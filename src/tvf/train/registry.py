@@ -53,6 +53,14 @@ class ModelKind:
 
 
 VF_RECIPES = {"lite": Recipe(3000, 8, 1e-4), "paper": Recipe(60000, 1, 1e-4), "smoke": Recipe(2, 2, 1e-3)}
+VF_TUNES: dict[str, tuple[Recipe, str]] = {
+    # lite: the shipped VF (session 25, docs/results.md "A VF that meets the foresight targets"): the
+    # recipe's VF fine-tuned through three-step rollouts, changed pixels weighted 21 times, the local head
+    "lite": (Recipe(3000, 8, 2e-4, "cosine", 100, vf_changed_weight=20.0, vf_rollout=3), "local"),
+    "smoke": (Recipe(2, 2, 1e-3, vf_changed_weight=20.0, vf_rollout=2), "local"),
+}
+"""The VF's second phase per preset, with its head (`tvf experiment --vf-tune`): it starts from the
+weights of the recipe above (``--init``), with a fresh optimiser."""
 MODELS: dict[str, ModelKind] = {
     "gctn": ModelKind(
         "gctn", MODEL_CLASSES["gctn"], GctnSampler, gctn_job,
@@ -91,6 +99,14 @@ def recipe(kind: str, preset: str) -> Recipe:
     if preset not in recipes:
         raise TvfError(f"unknown preset {preset!r}; choose one of {', '.join(recipes)}")
     return recipes[preset]
+
+
+def vf_tune(preset: str) -> tuple[Recipe, str]:
+    """The VF's fine-tuning phase at ``preset`` and its head; a preset without one is a one-line error."""
+    if preset not in VF_TUNES:
+        raise TvfError(f"--vf-tune has no fine-tuning recipe for preset {preset!r} (it has: "
+                       f"{', '.join(VF_TUNES)}); drop --vf-tune or use one of those")  # fmt: skip
+    return VF_TUNES[preset]
 
 
 def with_recipe(cfg: TrainConfig, kind: str) -> TrainConfig:
