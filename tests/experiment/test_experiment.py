@@ -148,6 +148,15 @@ def test_vf_tune_fine_tunes_the_vf_and_every_later_stage_uses_it(tmp_path):
     assert model_dir(cfg, "vf") == tmp_path / "vf-tuned" and model_dir(cfg, "gctn") == tmp_path / "gctn"
     shipped = json.loads((tmp_path / "weights" / "provenance.json").read_text())["models"]["vf"]["train"]
     assert shipped["out"] == str(tmp_path / "vf-tuned") and shipped["init"] == str(tmp_path / "vf")
+    card = (tmp_path / "weights" / "README.md").read_text()  # the card names the weights it started from
+    assert (
+        f"* vf: trained from the weights `{tmp_path / 'vf'}` (step 2, SHA-256 `{tuned['init']['sha256']}`)"
+        in card
+    )
+    assert (
+        "with --vf-head local --vf-changed-weight 20 --vf-rollout 2." in card
+        and "* gctn: trained" not in card
+    )
     assert json.loads((tmp_path / "eval-vf" / "metrics.json").read_text())
     with pytest.raises(TvfError, match="no fine-tuning recipe for preset 'paper'"):
         run_experiment(ExperimentConfig(out=tmp_path / "p", preset="paper", vf_tune=True))

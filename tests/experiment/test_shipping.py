@@ -189,7 +189,9 @@ def test_a_failed_upgrade_puts_back_every_models_files(folder, monkeypatch):
 def test_the_committed_model_card_is_what_the_generator_writes(tmp_path, monkeypatch):
     committed = (WEIGHTS_DIR / MODEL_CARD).read_text()
     assert committed == model_card(provenance()), "regenerate: tvf.experiment.shipping.write_model_card()"
-    assert "65.0 % [57–72]" in committed  # TVF-L's test-range result (docs/results.md)
+    assert (
+        "| TVF-L, paper rules | test (odd, from 1 000 001) | 20 | 57.5 % [50–65] |" in committed
+    )  # results.md
     monkeypatch.setattr(tvf.weights, "WEIGHTS_DIR", tmp_path)
     (tmp_path / PROVENANCE).write_text(json.dumps(provenance(WEIGHTS_DIR)))
     assert write_model_card().read_text() == committed  # the default folder is read at call time

@@ -71,6 +71,7 @@ def _model_entry(checkpoint: Path, out: Path, model, ckpt: Checkpoint) -> dict:
         "file": out.name, "config": conf.name, "step": ckpt.step, "preset": preset_of(ckpt).name,
         "data_fingerprint": cfg.get("data_fingerprint", ckpt.extra.get("data_fingerprint")),
         "seed": cfg.get("seed"), "episodes": cfg.get("episodes"), "train": cfg.get("train"),
+        "init": cfg.get("init"),
         "parameters": sum(p.numel() for p in model.parameters()), "validation": _validation(run, ckpt),
         "architecture": ckpt.config.get("preset"),
         "sha256": {out.name: sha256_file(out), conf.name: sha256_file(conf)},
@@ -317,6 +318,7 @@ def _recipe(record: dict) -> list[str]:
         shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items()) or "–"
         cells = [t.get(k, "–") for k in ("steps", "batch", "lr", "schedule", "warmup", "seed")]
         lines.append(f"| {kind} | {m.get('preset')} | " + " | ".join(map(str, cells)) + f" | {shown} |")
+    lines += _fine_tunes(models)
     lines += ["", "Architecture (`tvf.models.presets.ModelPreset`, also in each JSON config):", ""]
     for kind, m in models.items():
         arch = ", ".join(f"{k}={v}" for k, v in (m.get("architecture") or {}).items())
@@ -325,6 +327,33 @@ def _recipe(record: dict) -> list[str]:
     if commands:
         lines += ["", "Made by:", "", "```bash", *commands, "```"]
     return lines
+
+
+TUNE_FLAGS = {"vf_head": None, "vf_changed_weight": 0, "vf_rollout": 1, "turns": 1}
+"""Training flags a fine-tune may set, with the value that means "not set"."""
+
+
+def _fine_tunes(models: dict) -> list[str]:
+    """One line per model trained from other weights (``--init``): the weights it started from (path,
+    step, SHA-256 as its run recorded them) and the flags its training set."""
+    lines = []
+    for kind, m in models.items():
+        t = m.get("train") or {}
+        if not t.get("init"):
+            continue
+        source = m.get("init") or {}
+        start = [f"step {source['step']}"] if "step" in source else []
+        start += [f"SHA-256 `{source['sha256']}`"] if "sha256" in source else []
+        flags = [f"--{k.replace('_', '-')} {_flag(t[k])}" for k, unset in TUNE_FLAGS.items()
+                 if t.get(k) not in (None, unset)]  # fmt: skip
+        line = f"* {kind}: trained from the weights `{t['init']}`"
+        line += f" ({', '.join(start)})" if start else ""
+        lines.append(line + (f" with {' '.join(flags)}" if flags else "") + ".")
+    return ["", *lines] if lines else []
+
+
+def _flag(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def _result_rows(record: dict) -> list[tuple[str, dict, dict]]:

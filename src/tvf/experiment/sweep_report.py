@@ -209,8 +209,8 @@ def cells_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[
     return rows
 
 
-def hours(seconds: float | None) -> str:
-    return "–" if seconds is None else f"{seconds / 3600:.2f}"
+def hours(seconds: float) -> str:
+    return f"{seconds / 3600:.2f}"
 
 
 def cost_table(out: Path, demos: list[int], seeds: list[int]) -> list[Row]:
