@@ -43,6 +43,11 @@ def costed(out: Path, stage: str) -> Iterator[None]:
         append_jsonl(Path(out) / COST_LOG, record)
 
 
+def hours(seconds: float) -> str:
+    """Seconds as hours with two decimals, the unit the reports give cost in."""
+    return f"{seconds / 3600:.2f}"
+
+
 def stage_costs(out: Path) -> dict[str, dict[str, float]]:
     """``{stage: {"wall_s": ..., "cpu_s": ...}}`` summed over every recorded run of each stage in ``out``
     ({} when nothing is recorded)."""

@@ -29,7 +29,7 @@ from tvf.evaluate.closed_loop import evaluate
 from tvf.evaluate.foresight import evaluate_foresight
 from tvf.evaluate.recording import RecordedEpisode, record_episode
 from tvf.experiment.config import NOT_RECORDED, RECIPE_FLAGS, ExperimentConfig, merged_methods
-from tvf.experiment.cost import costed, stage_costs
+from tvf.experiment.cost import costed, hours, stage_costs
 from tvf.experiment.report import evaluated_methods, plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
@@ -101,6 +101,11 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
         tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, restart=cfg.restart, device=cfg.device,
         wandb=cfg.wandb, **overrides,
     ), kind)  # fmt: skip
+    return _with_intervals(tc)
+
+
+def _with_intervals(tc: TrainConfig) -> TrainConfig:
+    """An experiment's run validates and checkpoints ten times over its steps and logs every 25."""
     every = max(1, tc.steps // 10)
     return replace(tc, val_every=every, checkpoint_every=every, log_every=max(1, min(25, tc.steps)))
 
@@ -109,11 +114,9 @@ def tune_config(cfg: ExperimentConfig) -> TrainConfig:
     """The VF's second phase (``--vf-tune``): the preset's tuning recipe and head, from EXP/vf's weights,
     into EXP/vf-tuned."""
     phase, head = vf_tune(cfg.preset)
-    base = train_config(cfg, "vf")
-    every = max(1, phase.steps // 10)
-    return replace(base, out=cfg.out / "vf-tuned", init=cfg.out / "vf", vf_head=head,
-                   **{f: getattr(phase, f) for f in RECIPE_FIELDS}, val_every=every, checkpoint_every=every,
-                   log_every=max(1, min(25, phase.steps)))  # fmt: skip
+    tc = replace(train_config(cfg, "vf"), out=cfg.out / "vf-tuned", init=cfg.out / "vf", vf_head=head,
+                 **{f: getattr(phase, f) for f in RECIPE_FIELDS})  # fmt: skip
+    return _with_intervals(tc)
 
 
 def model_dir(cfg: ExperimentConfig, kind: str) -> Path:
@@ -197,9 +200,9 @@ def _meta(cfg: ExperimentConfig) -> dict:
         meta["commands"] = "; ".join(commands)
     costs = stage_costs(cfg.out)  # the report stage's own run is recorded after it
     if costs:
-        each = ", ".join(f"{stage} {c['cpu_s'] / 3600:.2f}" for stage, c in costs.items())
-        cpu, wall = (sum(c[key] for c in costs.values()) / 3600 for key in ("cpu_s", "wall_s"))
-        meta["cost so far"] = f"{cpu:.2f} CPU h in {wall:.2f} h of wall time ({each}; cost.jsonl)"
+        each = ", ".join(f"{stage} {hours(c['cpu_s'])}" for stage, c in costs.items())
+        cpu, wall = (hours(sum(c[key] for c in costs.values())) for key in ("cpu_s", "wall_s"))
+        meta["cost so far"] = f"{cpu} CPU h in {wall} h of wall time ({each}; cost.jsonl)"
     return meta
 
 

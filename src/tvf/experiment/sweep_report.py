@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 
 from tvf.evaluate.closed_loop import wilson
 from tvf.experiment.config import STAGES
-from tvf.experiment.cost import stage_costs
+from tvf.experiment.cost import hours, stage_costs
 from tvf.experiment.report import (
     MISSING,
     PAPER_TASKS_10_DEMOS,
@@ -207,10 +207,6 @@ def cells_table(cells: Cells, demos: list[int], seeds: list[int], methods: list[
             values = [task_cell(aggregate({(n, s): found}, n, m, unseen)) for m in methods]
             rows.append(("task", f"demos-{n}/seed-{s}", values))
     return rows
-
-
-def hours(seconds: float) -> str:
-    return f"{seconds / 3600:.2f}"
 
 
 def cost_table(out: Path, demos: list[int], seeds: list[int]) -> list[Row]:
