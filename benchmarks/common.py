@@ -40,6 +40,15 @@ def on(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.
     return {k: v.to(device) for k, v in batch.items()}
 
 
+def named_preset(name: str) -> ModelPreset:
+    """A preset by name; ``NAME+c4`` is that preset with the GCTN's quarter-turn-tied kernels."""
+    base, plus, variant = name.partition("+")
+    if plus and variant != "c4":
+        raise SystemExit(f"unknown preset variant {variant!r} in {name!r}: the one variant is +c4")
+    preset = get_preset(base)
+    return preset.replace(gctn_kernels="c4") if plus else preset
+
+
 def preset_benchmark_main(
     label: str,
     bench_preset: Callable[[ModelPreset, int, bool, torch.device], dict[str, object]],
@@ -48,7 +57,8 @@ def preset_benchmark_main(
     """Parse the common flags, run ``bench_preset(preset, repeats, channels_last, device)`` for each preset
     and print one JSON object."""
     parser = argparse.ArgumentParser(description=doc)
-    parser.add_argument("--presets", default="lite,smoke", help="comma-separated preset names")
+    parser.add_argument("--presets", default="lite,smoke",
+                        help="comma-separated preset names; NAME+c4: with the GCTN's C4 kernels")  # fmt: skip
     parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
     parser.add_argument("--threads", type=int, default=2)
@@ -58,7 +68,7 @@ def preset_benchmark_main(
     torch.set_num_threads(args.threads)
     device = pick_device(args.device)
     names = args.presets.split(",") + (["paper"] if args.paper else [])
-    results = {name: bench_preset(get_preset(name), args.repeats, not args.nchw, device) for name in names}
+    results = {name: bench_preset(named_preset(name), args.repeats, not args.nchw, device) for name in names}
     meta = {"threads": args.threads, "repeats": args.repeats, "channels_last": not args.nchw,
             "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"}  # fmt: skip
     print(json.dumps({label: results, **meta}, indent=1))

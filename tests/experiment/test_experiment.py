@@ -103,6 +103,9 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     assert train_config(lite, "vf").schedule == "constant"
     mine = ExperimentConfig(out=tmp_path, preset="lite", gctn_steps=10, gctn_schedule="constant").resolved()
     assert (mine.gctn_steps, mine.gctn_schedule, mine.gctn_batch) == (10, "constant", 2)
+    c4 = ExperimentConfig(out=tmp_path, preset="lite", gctn_kernels="c4").resolved()
+    assert (train_config(c4, "gctn").gctn_kernels, train_config(c4, "vf").gctn_kernels) == ("c4", None)
+    assert train_config(lite, "gctn").gctn_kernels is None  # the preset's plain kernels
 
 
 @pytest.mark.slow  # make test-all

@@ -270,3 +270,19 @@ def test_symmetrised_training_starts_from_given_weights_and_is_recorded(data_roo
         vf = config(data_root, tmp_path / "vf", steps=2)
         train(vf, vf_job(vf))
         gctn_job(replace(tuned, out=tmp_path / "again", init=tmp_path / "vf"))
+
+
+def test_c4_kernels_are_a_gctn_flag_recorded_in_the_preset(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "c4", steps=2, gctn_kernels="c4")
+    train(cfg, gctn_job(cfg))
+    saved = json.loads((tmp_path / "c4" / "config.json").read_text())
+    assert saved["preset"]["gctn_kernels"] == "c4"
+    checkpoint = load_checkpoint(tmp_path / "c4" / "checkpoints" / "last.pt", "gctn")
+    assert checkpoint.config["preset"] == saved["preset"]
+    plain = replace(cfg, resume=True, steps=3, gctn_kernels=None)
+    with pytest.raises(RunError, match="preset"):  # another network: a resume must name the same kernels
+        train(plain, gctn_job(plain))
+    with pytest.raises(TrainError, match="--gctn-kernels is a GCTN flag"):
+        vf_job(replace(cfg, out=tmp_path / "vf"))
+    with pytest.raises(TvfError, match="gctn_kernels must be one of plain, c4"):
+        gctn_job(replace(cfg, out=tmp_path / "bad", gctn_kernels="c8"))

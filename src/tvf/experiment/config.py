@@ -89,6 +89,10 @@ class ExperimentConfig:
     vf_rollout: int | None = None
     """VF rollout loss horizon: each training sample is this many consecutive steps, each predicted from
     the VF's own prediction (1: the reference's one-step loss; default: the preset's; docs/models.md)."""
+    gctn_kernels: str | None = None
+    """GCTN kernels: plain (the paper's) | c4 (tied over quarter turns: the GCTN's maps exactly
+    equivariant to quarter turns of the scene, at the plain cost; docs/models.md); default: the preset's
+    (plain)."""
     vf_tune: bool = False
     """After the VF's recipe, fine-tune it with the preset's second phase (lite: 3000 steps from its
     weights, lr 2e-4 cosine, three-step rollout loss, changed pixels weighted 21 times, the local head;

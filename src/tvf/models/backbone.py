@@ -11,6 +11,10 @@ Two layouts, both NCHW, with a width multiplier that scales every hidden channel
 Every stage is a *conv block* (bottleneck 1x1 (stride) / 3x3 / 1x1 plus a 1x1 strided projection
 shortcut) followed by an *identity block* (same bottleneck, identity shortcut). Convolutions have
 biases and Glorot-uniform weights, and there is no normalisation layer, as in the reference.
+
+With ``c4=True`` every convolution is a :class:`tvf.models.c4.C4Conv` (kernels tied over quarter
+turns, 2 x 2 averages instead of strides) and the output is group-pooled: the FCN is then exactly
+equivariant to quarter turns of its input, at the cost of the plain FCN with the same channels.
 """
 
 from __future__ import annotations
@@ -21,11 +25,16 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from tvf.models.c4 import TURNS, C4Conv, group_pool
+
 MIN_CHANNELS = 4
 
 
-def scaled(channels: int, width: float) -> int:
-    """Hidden channel count ``channels * width``, rounded, never below :data:`MIN_CHANNELS`."""
+def scaled(channels: int, width: float, c4: bool = False) -> int:
+    """Hidden channel count ``channels * width``, rounded, never below :data:`MIN_CHANNELS`; with
+    ``c4`` rounded to whole fields of four channels."""
+    if c4:
+        return TURNS * max(1, int(round(channels * width / TURNS)))
     return max(MIN_CHANNELS, int(round(channels * width)))
 
 
@@ -47,9 +56,12 @@ class SubsampledPointwiseConv(nn.Conv2d):
 
 
 def _conv(
-    c_in: int, c_out: int, kernel: int, stride: int = 1, generator: torch.Generator | None = None
-) -> nn.Conv2d:
-    """Conv with bias, Glorot-uniform weights drawn from ``generator``, zero bias."""
+    c_in: int, c_out: int, kernel: int, stride: int = 1, generator: torch.Generator | None = None,
+    c4: bool = False,
+) -> nn.Module:  # fmt: skip
+    """Conv with bias, Glorot-uniform weights drawn from ``generator``, zero bias (C4-tied if ``c4``)."""
+    if c4:
+        return C4Conv(c_in, c_out, kernel, stride, generator=generator)
     if kernel == 1:
         conv: nn.Conv2d = SubsampledPointwiseConv(c_in, c_out, stride)
     else:
@@ -73,15 +85,16 @@ class Bottleneck(nn.Module):
         project: bool,
         activation: bool,
         generator: torch.Generator | None = None,
+        c4: bool = False,
     ) -> None:
         super().__init__()
         f1, f2, f3 = filters
         if not project and (stride != 1 or c_in != f3):
             raise ValueError("an identity block needs stride 1 and equal input/output channels")
-        self.reduce = _conv(c_in, f1, 1, stride, generator)
-        self.mix = _conv(f1, f2, 3, 1, generator)
-        self.expand = _conv(f2, f3, 1, 1, generator)
-        self.shortcut = _conv(c_in, f3, 1, stride, generator) if project else nn.Identity()
+        self.reduce = _conv(c_in, f1, 1, stride, generator, c4)
+        self.mix = _conv(f1, f2, 3, 1, generator, c4)
+        self.expand = _conv(f2, f3, 1, 1, generator, c4)
+        self.shortcut = _conv(c_in, f3, 1, stride, generator, c4) if project else nn.Identity()
         self.activation = activation
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -102,10 +115,11 @@ class Stage(nn.Sequential):
         stride: int,
         activation: bool,
         generator: torch.Generator | None = None,
+        c4: bool = False,
     ) -> None:
         super().__init__(
-            Bottleneck(c_in, filters, stride, project=True, activation=activation, generator=generator),
-            Bottleneck(filters[2], filters, 1, project=False, activation=activation, generator=generator),
+            Bottleneck(c_in, filters, stride, True, activation, generator, c4),
+            Bottleneck(filters[2], filters, 1, False, activation, generator, c4),
         )
 
 
@@ -131,7 +145,9 @@ class BottleneckFCN(nn.Module):
 
     The output keeps the input's spatial size when the strides and upsamplings balance. With
     ``channels_last`` the weights and every input use the channels-last memory format (faster on CPU).
-    Weights are drawn from ``generator`` (the global RNG when None).
+    Weights are drawn from ``generator`` (the global RNG when None). With ``c4`` the stem lifts the
+    image to regular fields, every layer is quarter-turn tied, and the last stage's fields are
+    group-pooled: ``out_channels`` is a quarter of its channels.
     """
 
     def __init__(
@@ -141,17 +157,22 @@ class BottleneckFCN(nn.Module):
         stages: list[StageSpec],
         channels_last: bool = True,
         generator: torch.Generator | None = None,
+        c4: bool = False,
     ):
         super().__init__()
         self.in_channels = in_channels
-        self.out_channels = stages[-1].filters[2]
-        self.stem = _conv(in_channels, stem, 3, 1, generator)
+        self.c4 = c4
+        self.out_channels = stages[-1].filters[2] // (TURNS if c4 else 1)
+        if c4:
+            self.stem: nn.Module = C4Conv(in_channels, stem, 3, lifting=True, generator=generator)
+        else:
+            self.stem = _conv(in_channels, stem, 3, 1, generator)
         layers: list[nn.Module] = []
         c = stem
         for spec in stages:
             if spec.upsample:
                 layers.append(Upsample2x())
-            layers.append(Stage(c, spec.filters, spec.stride, spec.activation, generator))
+            layers.append(Stage(c, spec.filters, spec.stride, spec.activation, generator, c4))
             c = spec.filters[2]
         self.body = nn.Sequential(*layers)
         self.downsampling = 1
@@ -164,7 +185,8 @@ class BottleneckFCN(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
-        return self.body(F.relu(self.stem(x), inplace=True))
+        y = self.body(F.relu(self.stem(x), inplace=True))
+        return group_pool(y) if self.c4 else y
 
 
 def resnet43_8s(
@@ -173,12 +195,15 @@ def resnet43_8s(
     width: float = 1.0,
     channels_last: bool = True,
     generator: torch.Generator | None = None,
+    c4: bool = False,
 ) -> BottleneckFCN:
-    """ResNet43_8s-like FCN (Transporter attention / transport nets). Input sides must divide by 8."""
+    """ResNet43_8s-like FCN (Transporter attention / transport nets). Input sides must divide by 8
+    (then the 2 x 2 averages of ``c4`` see even sides at every level)."""
 
     def w(c: int) -> int:
-        return scaled(c, width)
+        return scaled(c, width, c4)
 
+    outputs = out_channels * (TURNS if c4 else 1)
     stages = [
         StageSpec((w(64), w(64), w(64)), 1),
         StageSpec((w(128), w(128), w(128)), 2),
@@ -187,9 +212,9 @@ def resnet43_8s(
         StageSpec((w(256), w(256), w(256)), 1),
         StageSpec((w(128), w(128), w(128)), 1, upsample=True),
         StageSpec((w(64), w(64), w(64)), 1, upsample=True),
-        StageSpec((w(16), w(16), out_channels), 1, upsample=True, activation=False),
+        StageSpec((w(16), w(16), outputs), 1, upsample=True, activation=False),
     ]
-    return BottleneckFCN(in_channels, w(64), stages, channels_last, generator)
+    return BottleneckFCN(in_channels, w(64), stages, channels_last, generator, c4)
 
 
 def resnet36_4s(
@@ -217,15 +242,20 @@ def count_parameters(module: nn.Module) -> int:
 
 
 def count_conv_macs(module: nn.Module, input_shape: tuple[int, int, int, int]) -> int:
-    """Multiply-accumulates of every Conv2d for one forward pass at ``input_shape`` (N, C, H, W)."""
+    """Multiply-accumulates of every Conv2d and :class:`C4Conv` for one forward pass at
+    ``input_shape`` (N, C, H, W)."""
     total = 0
 
-    def hook(conv: nn.Conv2d, _inputs: tuple[torch.Tensor, ...], output: torch.Tensor) -> None:
+    def hook(conv: nn.Module, _inputs: tuple[torch.Tensor, ...], output: torch.Tensor) -> None:
         nonlocal total
+        if isinstance(conv, C4Conv):
+            total += conv.macs(output)
+            return
         k = conv.kernel_size[0] * conv.kernel_size[1] * (conv.in_channels // conv.groups)
         total += output.numel() * k
 
-    handles = [m.register_forward_hook(hook) for m in module.modules() if isinstance(m, nn.Conv2d)]
+    convs = (nn.Conv2d, C4Conv)
+    handles = [m.register_forward_hook(hook) for m in module.modules() if isinstance(m, convs)]
     try:
         with torch.no_grad():
             module(torch.zeros(input_shape))

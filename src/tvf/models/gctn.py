@@ -220,7 +220,8 @@ class Attention(nn.Module):
 
     def __init__(self, preset: ModelPreset, generator: torch.Generator | None = None) -> None:
         super().__init__()
-        self.fcn = resnet43_8s(2 * RGBH_CHANNELS, 1, preset.attention_width, preset.channels_last, generator)
+        self.fcn = resnet43_8s(2 * RGBH_CHANNELS, 1, preset.attention_width, preset.channels_last, generator,
+                               c4=preset.gctn_kernels == "c4")  # fmt: skip
 
     def forward(self, current: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """(B, 4, H, W) x2 -> pick logits (B, H, W)."""
@@ -234,9 +235,10 @@ class Transport(nn.Module):
     def __init__(self, preset: ModelPreset, generator: torch.Generator | None = None) -> None:
         super().__init__()
         width, ch, cl = preset.transport_width, preset.transport_channels, preset.channels_last
-        self.key = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator)
-        self.query = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator)
-        self.goal = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator)
+        c4 = preset.gctn_kernels == "c4"
+        self.key = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator, c4)
+        self.query = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator, c4)
+        self.goal = resnet43_8s(RGBH_CHANNELS, ch, width, cl, generator, c4)
         self.crop = preset.crop
         self.pad = preset.crop // 2
         self.image_size = preset.image_size

@@ -12,6 +12,11 @@ from typing import Any
 from tvf.errors import TvfError
 
 VF_HEADS = ("image", "blend", "local")
+GCTN_KERNELS = ("plain", "c4")
+LATER_DEFAULTS: dict[str, Any] = {"gctn_kernels": "plain"}
+"""Fields added after presets were first stored, with their defaults. :meth:`ModelPreset.as_dict` leaves
+them out at these values, so every run and checkpoint made before them keeps its exact stored preset
+(a resume and a checkpoint check compare it)."""
 
 
 class PresetError(TvfError, ValueError):
@@ -46,6 +51,9 @@ class ModelPreset:
             value, so untouched pixels stay exact; docs/models.md), "local" (the FCN redraws only the
             pick and place windows; every other pixel is the input's).
         channels_last: run the convolutions in the channels-last memory format.
+        gctn_kernels: "plain" (the paper's) or "c4": the GCTN's FCNs tie every kernel over quarter
+            turns (:mod:`tvf.models.c4`), so its maps are exactly equivariant to quarter turns of the
+            scene by construction, at the cost of the plain FCNs with the same channels.
     """
 
     name: str
@@ -64,6 +72,7 @@ class ModelPreset:
     vf_residual: bool = False
     vf_head: str = "image"
     channels_last: bool = True
+    gctn_kernels: str = "plain"
 
     def __post_init__(self) -> None:
         if self.crop % 8 or self.image_size % 8:
@@ -81,10 +90,15 @@ class ModelPreset:
             raise PresetError(f"vf_head must be one of {', '.join(VF_HEADS)}, not {self.vf_head!r}")
         if self.vf_window % 2:
             raise PresetError("vf_window must be even")
+        if self.gctn_kernels not in GCTN_KERNELS:
+            raise PresetError(
+                f"gctn_kernels must be one of {', '.join(GCTN_KERNELS)}, not {self.gctn_kernels!r}"
+            )
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain dict (JSON- and ``torch.load(weights_only=True)``-safe)."""
-        return asdict(self)
+        """Plain dict (JSON- and ``torch.load(weights_only=True)``-safe); fields of
+        :data:`LATER_DEFAULTS` at their defaults are left out."""
+        return {k: v for k, v in asdict(self).items() if k not in LATER_DEFAULTS or LATER_DEFAULTS[k] != v}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ModelPreset:

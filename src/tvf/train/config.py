@@ -53,6 +53,10 @@ class TrainConfig:
     """GCTN only: train the GCTN's maps averaged over 1, 2 or 4 quarter turns of the scene (8: and their
     mirror images), the maps that `--turns` plans with (tvf.models.symmetry): its weights then learn
     under the exactly equivariant loss; each step costs about TURNS plain steps; default 1 (the paper's)."""
+    gctn_kernels: str | None = None
+    """GCTN only: plain (the paper's) | c4: every kernel of its FCNs tied over quarter turns, so its maps
+    are exactly equivariant to quarter turns of the scene by construction, at the plain FCNs' cost (a
+    quarter of the free weights; tvf.models.c4, docs/models.md); default: the preset's (plain)."""
     init: Path | None = None
     """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
     file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""

@@ -158,6 +158,12 @@ def _refuse_turns(cfg: TrainConfig, model: str) -> None:
                          "such maps: leave it out")  # fmt: skip
 
 
+def _refuse_kernels(cfg: TrainConfig, model: str) -> None:
+    if cfg.gctn_kernels is not None:
+        raise TrainError(f"--gctn-kernels is a GCTN flag (its FCNs' kernels); the {model} has none of "
+                         "those: leave it out")  # fmt: skip
+
+
 def _refuse_rollout(cfg: TrainConfig, model: str) -> None:
     if (cfg.vf_rollout or 1) > 1:
         raise TrainError(f"--vf-rollout is a VF flag (its multi-step loss); the {model} is trained on single "
@@ -168,7 +174,10 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     """Training job for the goal-conditioned Transporter (with ``turns`` > 1: its symmetrised maps, which
     are also what is validated; the plain GCTN inside is what is saved)."""
     _refuse_rollout(cfg, "GCTN")
-    model = GCTN(get_preset(cfg.preset), seed=cfg.seed)
+    preset = get_preset(cfg.preset)
+    if cfg.gctn_kernels is not None:
+        preset = preset.replace(gctn_kernels=cfg.gctn_kernels)
+    model = GCTN(preset, seed=cfg.seed)
     turns = check_turns(1 if cfg.turns is None else cfg.turns)
     trained = symmetrized(model, turns)
 
@@ -214,6 +223,7 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
 def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
     _refuse_turns(cfg, "visual-foresight model")
+    _refuse_kernels(cfg, "visual-foresight model")
     preset = get_preset(cfg.preset)
     if cfg.vf_head is not None:
         preset = preset.replace(vf_head=cfg.vf_head)
@@ -281,6 +291,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     if cfg.vf_head is not None:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
     _refuse_turns(cfg, "latent-dynamics model")
+    _refuse_kernels(cfg, "latent-dynamics model")
     _refuse_rollout(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
 
