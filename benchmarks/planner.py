@@ -17,10 +17,12 @@ adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+c
 
 ``--vfs PATH[,PATH]`` also times every ``--rules`` entry of the ``lite`` preset with each of these VFs (a run
 folder, .pt or .safetensors) in place of the shipped one, in the same run (``tvf-large/RULE/vf:PATH``):
-the side-by-side measurement a new VF is judged by.
+the side-by-side measurement a new VF is judged by. ``--gctns PATH[,PATH]`` does the same for other GCTNs
+(``tvf-large/RULE/gctn:PATH``, with the shipped VF), e.g. a run trained with ``--gctn-kernels c4``.
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3] [--vfs runs/vf]
+[--gctns runs/gctn]
 """
 
 from __future__ import annotations
@@ -109,11 +111,15 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str],
-          vfs: tuple[str, ...] = ()) -> dict:  # fmt: skip
+          vfs: tuple[str, ...] = (), gctns: tuple[str, ...] = ()) -> dict:  # fmt: skip
     gctn, vf, shipped = load_models(preset_name, device)
     from tvf.models.checkpoint import load_trained
 
-    others = {f"vf:{path}": load_trained(path, "vf", device) for path in vfs} if preset_name == "lite" else {}
+    # (row suffix, GCTN, VF): the shipped pair, then each other model beside the shipped one
+    pairs = [("", gctn, vf)]
+    if preset_name == "lite":
+        pairs += [(f"/vf:{path}", gctn, load_trained(path, "vf", device)) for path in vfs]
+        pairs += [(f"/gctn:{path}", load_trained(path, "gctn", device), vf) for path in gctns]
     current, goal = (x.to(device) for x in images)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     out: dict = {"weights": "shipped" if shipped else "random"}
@@ -132,9 +138,9 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
         out[name] = row
     for rule in rules:
         fields, turns, places, centre = rule_config(rule)
-        masked = goal_masked(gctn, places is not None, places or "gap")
-        model = symmetrized(centring_picks(masked, centre), turns)
-        for suffix, foresight in (("", vf), *((f"/{name}", other) for name, other in others.items())):
+        for suffix, policy_gctn, foresight in pairs:
+            masked = goal_masked(policy_gctn, places is not None, places or "gap")
+            model = symmetrized(centring_picks(masked, centre), turns)
             search = TreeSearch(model, foresight, PlannerConfig(**{"k": 3, "depth": 3, **fields}))
             seconds = best_seconds(lambda s=search: s.search(current, goal), repeats)
             counts = search.search(current, goal).counts
@@ -153,6 +159,7 @@ def main() -> None:
     parser.add_argument("--task", default="stack-pyramid")
     parser.add_argument("--rules", default="", help="proposal rules timed side by side (kmeans,nms+picks3)")
     parser.add_argument("--vfs", default="", help="other VFs timed with every rule of lite, side by side")
+    parser.add_argument("--gctns", default="", help="other GCTNs timed with every rule of lite, side by side")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     images = first_observation(args.task)
@@ -160,8 +167,9 @@ def main() -> None:
     names = args.presets.split(",") + (["paper"] if args.paper else [])
     rules = [r for r in args.rules.split(",") if r]
     vfs = tuple(v for v in args.vfs.split(",") if v)
+    gctns = tuple(g for g in args.gctns.split(",") if g)
     results = {
-        str(device): {name: bench(name, device, images, args.repeats, rules, vfs) for name in names}
+        str(device): {name: bench(name, device, images, args.repeats, rules, vfs, gctns) for name in names}
         for device in devices
     }
     print(json.dumps({"planner": results, "threads": args.threads, "task": args.task}, indent=1))

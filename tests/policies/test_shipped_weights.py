@@ -30,3 +30,15 @@ def test_the_shipped_gctn_builds_a_training_task_scene():
     result = policy_episode(get_task("stack-tower"), 3, PolicySpec("gctn"))
     assert result.success, result
     assert result.steps == 3 and result.primitives == ["ok"] * 3 and result.progress == 1.0
+
+
+def test_the_shipped_gctn_has_quarter_turn_tied_kernels():
+    """Shipped since session 27 (docs/results.md, "C4 kernels"): its pick map turns exactly with the scene."""
+    model, _ = load_model(shipped_checkpoint("gctn"), "gctn")
+    assert model.preset.gctn_kernels == "c4"
+    generator = torch.Generator().manual_seed(0)
+    current, goal = (torch.rand(1, 4, 160, 160, generator=generator) for _ in range(2))
+    with torch.no_grad():
+        pick = model.pick_logits(current, goal)
+        turned = model.pick_logits(torch.rot90(current, 1, (-2, -1)), torch.rot90(goal, 1, (-2, -1)))
+    assert torch.allclose(torch.rot90(pick, 1, (-2, -1)), turned, atol=1e-4 * float(pick.abs().max()))
