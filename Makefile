@@ -30,7 +30,7 @@ lint: $(STAMP)
 quickstart: $(STAMP)
 	$(VENV)/bin/tvf quickstart --out out/quickstart
 
-# Re-train the shipped lite weights from scratch (data, GCTN, VF and its second phase, all evaluations, report; about 3 h 25 min on
+# Re-train the shipped lite weights from scratch (data, C4 GCTN, VF and its second phase, all evaluations, report; about 3 h 50 min on
 # 2 CPU cores; re-run to resume) and copy them into src/tvf/weights.
 reproduce: $(STAMP)
 	$(VENV)/bin/tvf experiment --demos 10 --preset lite --gctn-kernels c4 --vf-tune --out runs/reproduce-lite-10 --ship

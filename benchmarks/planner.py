@@ -33,6 +33,7 @@ import json
 import torch
 
 from common import best_seconds
+from tvf.errors import TvfError
 from tvf.models.gctn import GCTN
 from tvf.models.goal_mask import goal_masked
 from tvf.models.images import to_rgbh
@@ -168,10 +169,13 @@ def main() -> None:
     rules = [r for r in args.rules.split(",") if r]
     vfs = tuple(v for v in args.vfs.split(",") if v)
     gctns = tuple(g for g in args.gctns.split(",") if g)
-    results = {
-        str(device): {name: bench(name, device, images, args.repeats, rules, vfs, gctns) for name in names}
-        for device in devices
-    }
+    try:
+        results = {
+            str(device): {n: bench(n, device, images, args.repeats, rules, vfs, gctns) for n in names}
+            for device in devices
+        }
+    except TvfError as error:  # a --vfs / --gctns path that is missing or holds the other model
+        parser.exit(2, f"error: {error}\n")
     print(json.dumps({"planner": results, "threads": args.threads, "task": args.task}, indent=1))
 
 
