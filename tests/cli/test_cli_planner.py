@@ -288,3 +288,30 @@ def test_eval_records_a_centred_share_and_root_alpha_and_resumes_only_with_them(
     gap = ("--mask-places", "gap")  # the goal mask's every place: nothing to centre
     code, _, err = run(capsys, "eval", "--method", "tvf-small", *gap, "--centred-share", "0.75", *args)
     assert code == 2 and "--centred-share sets how the goal mask centres its places" in err, err
+
+
+def test_eval_with_a_simulated_foresight_names_it_and_resumes_only_with_it(capsys, tmp_path, smoke_weights):
+    args = ("--method", "tvf-small-paper", "--gctn", str(smoke_weights / "gctn-lite.pt"), "--tasks",
+            "stack-stair", "--episodes", "1", "--out", str(tmp_path / "e"))  # fmt: skip
+    code, out, err = run(capsys, "eval", *args, "--foresight", "simulator")
+    assert code == 0, err
+    assert "# Evaluation: tvf-small-paper (simulator foresight)" in out
+    assert json.loads((tmp_path / "e" / "summary.json").read_text())["foresight"] == "simulator"
+    assert json.loads((tmp_path / "e" / "eval.json").read_text())["resolved"]["foresight"] == "simulator"
+    code, _, err = run(capsys, "eval", *args)  # the VF's search is another evaluation
+    assert code == 2 and "other foresight" in err, err
+    code, _, err = run(capsys, "viz", "plan", "--method", "tvf-small-paper", "--foresight", "simulator",
+                       "--task", "stack-stair", "--seed", "1", "--out", str(tmp_path / "p"))  # fmt: skip
+    assert code == 2 and "only tvf eval and tvf ablate run it" in err, err
+
+
+def test_ablate_with_a_simulated_foresight_names_it(capsys, tmp_path, smoke_weights):
+    code, out, err = run(
+        capsys, "ablate", "--method", "tvf-small-paper", "--foresight", "simulator", "--gctn",
+        str(smoke_weights / "gctn-lite.pt"), "--k", "1", "--depth", "1", "--tasks", "stack-stair",
+        "--episodes", "1", "--out", str(tmp_path / "a"),
+    )  # fmt: skip
+    assert code == 0, err
+    assert "# K x depth ablation (tvf-small-paper, simulator foresight)" in out
+    cell = json.loads((tmp_path / "a" / "k1-d1" / "summary.json").read_text())
+    assert cell["foresight"] == "simulator"

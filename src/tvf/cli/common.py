@@ -93,6 +93,11 @@ class PlannerFlags:
     tree stays as pruned); default: the method's (tvf-large 0.001; --alpha alone sets every node's, the
     root's too)."""
 
+    foresight: str | None = None
+    """TVF: what scores the search's nodes, vf (the VF's imagined images, the default) | simulator (each
+    proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
+    research, about 0.4 s a node on a laptop core; `tvf eval` and `tvf ablate` only; docs/planner.md)."""
+
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
         """The policy these flags choose for ``method``."""
@@ -102,7 +107,7 @@ class PlannerFlags:
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
-            self.root_alpha, self.centred_share, self.centre_picks,
+            self.root_alpha, self.centred_share, self.centre_picks, self.foresight,
         )  # fmt: skip
 
 

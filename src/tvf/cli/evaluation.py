@@ -72,7 +72,7 @@ class EvalCmd:
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
         from tvf.evaluate.runner import check_envs_per_worker, env_factory
-        from tvf.policies import get_method, make_policy
+        from tvf.policies import check_spec, make_policy, needs_env
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
@@ -80,8 +80,10 @@ class EvalCmd:
         envs = env_factory(self.env)
         check_envs_per_worker(self.envs_per_worker, envs)
         spec = self.spec()
-        if not get_method(spec.method).needs_env:
+        if not needs_env(spec):
             make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
+        else:
+            check_spec(spec)
         check_output_dir(self.out)
         summary = evaluate(
             spec,
@@ -179,7 +181,7 @@ class AblateCmd:
 
     def run(self) -> None:
         from tvf.experiment.ablation import ablation_cells, parse_grid, run_ablation
-        from tvf.policies import make_policy
+        from tvf.policies import check_spec, make_policy, needs_env
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
@@ -187,7 +189,9 @@ class AblateCmd:
         tasks = load_tasks(self.task_file).resolve(self.tasks)
         spec = self.planner.spec(self.method, device=self.device)
         ablation_cells(spec, ks, depths)
-        make_policy(spec)  # a bad flag or checkpoint fails before any cell runs
+        # a bad flag or checkpoint fails before any cell runs (a simulated foresight's policy needs its
+        # episode's simulator: its flags only)
+        check_spec(spec) if needs_env(spec) else make_policy(spec)
         check_output_dir(self.out)
         run_ablation(spec, ks, depths, tasks, self.episodes, self.seed_start, self.workers, self.out,
                      self.step_slack)  # fmt: skip

@@ -23,6 +23,7 @@ from tvf.policies import (
     PolicySpec,
     centre_picks_of,
     centred_share_of,
+    foresight_of,
     get_method,
     goal_mask_of,
     mask_places_of,
@@ -70,8 +71,9 @@ def summarise(results: list[dict], method: str) -> dict:
 
 
 def summary_markdown(summary: dict) -> str:
-    lines = [f"# Evaluation: {summary['method']}", "", "| task | episodes | success | 95% CI | progress |",
-             "|---|---|---|---|---|"]  # fmt: skip
+    seen = f" ({summary['foresight']} foresight)" if "foresight" in summary else ""
+    lines = [f"# Evaluation: {summary['method']}{seen}", "",
+             "| task | episodes | success | 95% CI | progress |", "|---|---|---|---|---|"]  # fmt: skip
     rows = [
         (r["task"], r["episodes"], f"{r['success']:.1%}", r["ci95"], r["progress"]) for r in summary["tasks"]
     ]
@@ -180,6 +182,8 @@ def _run_and_summarise(
         append_jsonl(log, record)
     results = [done[(t.name, s)] for t, s in jobs]
     summary = summarise(results, spec.method)
+    if foresight_of(spec) != "vf":  # the VF's, the default, is left unsaid as before
+        summary["foresight"] = foresight_of(spec)
     atomic_write_json(out / "summary.json", summary)
     atomic_write_bytes(out / "summary.md", summary_markdown(summary).encode())
     return summary

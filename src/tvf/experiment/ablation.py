@@ -21,7 +21,7 @@ from tvf.errors import TvfError
 from tvf.evaluate.closed_loop import evaluate
 from tvf.experiment.report import group_average, plural, success_cell, task_groups
 from tvf.io import atomic_write_bytes, atomic_write_json
-from tvf.policies import PLANNER_METHODS, PolicySpec, planner_of
+from tvf.policies import PLANNER_METHODS, PolicySpec, foresight_of, planner_of
 from tvf.tasks import Task
 
 PAPER_CELLS = {(3, 3): 0.785, (2, 1): 0.715}
@@ -68,7 +68,8 @@ def run_ablation(
         summaries[(cell.k, cell.depth)] = evaluate(
             cell, tasks, episodes, seed_start, workers, cell_dir(out, cell.k, cell.depth), step_slack
         )
-    return write_ablation(out, summaries, spec.method)
+    seen = foresight_of(spec)
+    return write_ablation(out, summaries, spec.method if seen == "vf" else f"{spec.method}, {seen} foresight")
 
 
 def grid_entries(summaries: dict[tuple[int, int], dict]) -> dict[str, dict[tuple[int, int], dict | None]]:

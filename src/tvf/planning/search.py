@@ -350,6 +350,18 @@ class TreeSearch:
         return with_extra_place(props, ordered, picks[0], cfg.k_at(level), BLOCK_PIXELS / 2)
 
     @torch.no_grad()
+    def propose(
+        self, current: torch.Tensor, goal: torch.Tensor, level: int = 1
+    ) -> tuple[Proposals, np.ndarray]:
+        """The proposals of one state (normalised RGB-H, (1, 4, H, W)) as a node at ``level`` of this
+        search would have them (1: the root's), and their rotation bins of a full turn."""
+        frontier = _Level(current, np.zeros(1, dtype=int), [-1])
+        features = self._goal_features(goal, mix=False)
+        picks, places, _, ordered = self._propose(frontier, goal, features, level, mix=False)
+        props = self._proposals(picks[0], places[0], level, ordered[0])
+        return props, self.gctn.rotation_bins(torch.as_tensor(props.rotations)).cpu().numpy()
+
+    @torch.no_grad()
     def _imagine(self, states: torch.Tensor, roots: np.ndarray, goals: torch.Tensor, picks, places, yaws,
                  mix: bool) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
         """The VF's children of ``states`` and their distances D to their roots' goals."""

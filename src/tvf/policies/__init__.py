@@ -1,7 +1,7 @@
 """Policies: the contract (:class:`Policy`), the built-in methods and the method registry."""
 
 from tvf.policies.base import BatchPolicy, Observation, Policy, act_all
-from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
+from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, TvfPolicy
 from tvf.policies.registry import (
     LEARNED_METHODS,
     METHODS,
@@ -10,12 +10,15 @@ from tvf.policies.registry import (
     PolicySpec,
     centre_picks_of,
     centred_share_of,
+    check_spec,
+    foresight_of,
     forget_cached_policies,
     get_method,
     goal_mask_of,
     label,
     make_policy,
     mask_places_of,
+    needs_env,
     paper_method,
     planner_of,
     policy_for,
@@ -26,7 +29,8 @@ from tvf.policies.registry import (
 
 __all__ = [
     "LEARNED_METHODS", "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation",
-    "OraclePolicy", "Policy", "PolicySpec", "TvfPolicy", "act_all", "centre_picks_of", "centred_share_of",
-    "forget_cached_policies", "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of",
-    "paper_method", "planner_of", "policy_for", "refine_yaw_of", "resolved_settings", "turns_of",
+    "OraclePolicy", "Policy", "PolicySpec", "SimulatedTvfPolicy", "TvfPolicy", "act_all", "centre_picks_of",
+    "centred_share_of", "check_spec", "foresight_of", "forget_cached_policies", "get_method",
+    "goal_mask_of", "label", "make_policy", "mask_places_of", "needs_env", "paper_method", "planner_of",
+    "policy_for", "refine_yaw_of", "resolved_settings", "turns_of",
 ]  # fmt: skip

@@ -11,6 +11,7 @@ from tvf.device import mixes_environments
 from tvf.models.images import to_rgbh
 from tvf.planning.actions import bin_action
 from tvf.planning.search import Plan, PlannerConfig, TreeSearch
+from tvf.planning.simulated import SimulatedSearch
 from tvf.policies.base import Observation
 
 
@@ -128,6 +129,25 @@ class TvfPolicy:
             )
             for p, obs, goal in zip(plans, observations, goals, strict=True)
         ]
+
+
+class SimulatedTvfPolicy:
+    """TVF with the simulator as its foresight (:mod:`tvf.planning.simulated`): every proposal of the
+    search is executed in ``env``, the environment the policy acts in, and undone. An upper bound for
+    research: a decision costs one simulator step per node (39 for TVF-L)."""
+
+    def __init__(self, env, proposer: TreeSearch, name: str = "tvf", refine_yaw: bool = False) -> None:
+        self.name = name
+        self.search = SimulatedSearch(proposer, env, refine_yaw)
+        self.last_plan: Plan | None = None
+        self.keep_images = False
+
+    def reset(self) -> None:
+        self.last_plan = None
+
+    def act(self, obs: Observation, goal: Observation) -> np.ndarray:
+        self.last_plan, actions = self.search.search(obs, goal, self.keep_images)
+        return actions[self.last_plan.path[0].index]
 
 
 def _goal_height(goal: Observation, refine_yaw: bool) -> np.ndarray | None:

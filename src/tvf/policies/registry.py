@@ -16,9 +16,10 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
 from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
-from tvf.planning.search import PlannerConfig, widest_node
+from tvf.planning.search import PlannerConfig, TreeSearch, widest_node
+from tvf.planning.simulated import FORESIGHTS
 from tvf.policies.base import Policy
-from tvf.policies.learned import GctnPolicy, OraclePolicy, TvfPolicy
+from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, TvfPolicy
 
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
@@ -83,6 +84,10 @@ class PolicySpec:
     centre_picks: bool | None = None
     """Move each pick the GCTN chooses to the centre of the block face under it, read from the height map
     (:mod:`tvf.models.pick_centre`; None: the method's, ``Method.centre_picks``; False: the paper's)."""
+    foresight: str | None = None
+    """TVF: what scores the search's nodes, ``vf`` (the VF's imagined images; None: this) or ``simulator``
+    (each proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound
+    for research; :mod:`tvf.planning.simulated`)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -169,6 +174,16 @@ def centre_picks_of(spec: PolicySpec) -> bool:
     return spec.centre_picks if spec.centre_picks is not None else get_method(spec.method).centre_picks
 
 
+def foresight_of(spec: PolicySpec) -> str:
+    """What scores ``spec``'s search: ``vf`` unless the spec asks for the ``simulator``."""
+    return spec.foresight or "vf"
+
+
+def needs_env(spec: PolicySpec) -> bool:
+    """Whether ``spec``'s policy reads the simulator it acts in (the oracle, a simulated foresight)."""
+    return get_method(spec.method).needs_env or foresight_of(spec) == "simulator"
+
+
 def resolved_settings(spec: PolicySpec) -> dict:
     """Every setting ``spec`` acts with, its method's defaults filled in where the spec leaves them (None):
     the GCTN's turns and image rules, and a TVF method's whole planner (less ``batched``, which changes
@@ -184,6 +199,7 @@ def resolved_settings(spec: PolicySpec) -> dict:
         )  # fmt: skip
     if method.planner is not None:
         settings.update({k: v for k, v in asdict(planner_of(spec)).items() if k != "batched"})
+        settings["foresight"] = foresight_of(spec)
     return settings
 
 
@@ -192,8 +208,20 @@ def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
 
 
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
+    if foresight_of(spec) == "simulator":
+        return _simulated_tvf(spec, env, device)
     vf = load_trained(spec.vf, "vf")
     return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
+
+
+def _simulated_tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
+    if env is None:
+        raise TvfError(
+            "--foresight simulator executes the search's actions in the simulator of the episode, so only "
+            "tvf eval and tvf ablate run it (in Python: make_policy(spec, env))"
+        )
+    proposer = TreeSearch(_load_gctn(spec).eval().to(device), None, planner_of(spec))
+    return SimulatedTvfPolicy(env, proposer, spec.method, refine_yaw_of(spec))
 
 
 IMAGE_RULES = {"goal_mask": True, "refine_yaw": True, "mask_places": "cells", "centre_picks": True}
@@ -294,12 +322,21 @@ def planner_of(spec: PolicySpec) -> PlannerConfig:
 
 def make_policy(spec: PolicySpec, env=None) -> Policy:
     """A new policy for ``spec`` (models are loaded here; errors name the bad flag or file)."""
+    method = check_spec(spec)
+    return method.build(spec, env, pick_device(spec.device))
+
+
+def check_spec(spec: PolicySpec) -> Method:
+    """``spec``'s method, after checking that its flags fit it (one-line errors naming the flag); no model
+    is read."""
     method = get_method(spec.method)
     overrides = spec.planner_overrides()
     if method.planner is None and overrides:
         names = ", ".join("--" + name.replace("_", "-") for name in overrides)
         raise TvfError(f"{spec.method} does not search; planner options need one of "
                        f"{', '.join(PLANNER_METHODS)} (drop {names})")  # fmt: skip
+    if spec.foresight is not None:
+        _check_foresight(spec, method)
     if method.planner is not None:
         planner = planner_of(spec)  # a bad K or depth fails before any model is read
         if planner.order_branch and not goal_mask_of(spec):
@@ -328,7 +365,16 @@ def make_policy(spec: PolicySpec, env=None) -> Policy:
                            "add --goal-mask True")  # fmt: skip
     if spec.centred_share is not None:
         _check_centred_share(spec)
-    return method.build(spec, env, pick_device(spec.device))
+    return method
+
+
+def _check_foresight(spec: PolicySpec, method: Method) -> None:
+    """A ``--foresight`` that exists and has a search to score, else a one-line error."""
+    if spec.foresight not in FORESIGHTS:
+        raise TvfError(f"unknown --foresight {spec.foresight!r}; choose one of {', '.join(FORESIGHTS)}")
+    if method.planner is None:
+        searches = ", ".join(PLANNER_METHODS)
+        raise TvfError(f"{spec.method} does not search; --foresight needs one of {searches}")
 
 
 def _check_centred_share(spec: PolicySpec) -> None:
@@ -342,7 +388,7 @@ def _check_centred_share(spec: PolicySpec) -> None:
 
 def policy_for(spec: PolicySpec, env=None) -> Policy:
     """This process's policy for ``spec``: learned ones are loaded once per process and reused."""
-    if get_method(spec.method).needs_env:
+    if needs_env(spec):
         return make_policy(spec, env)
     if spec not in _CACHE:
         _CACHE[spec] = make_policy(spec)

@@ -45,6 +45,18 @@ class EpisodeOverError(TvfError):
 
 
 @dataclass(frozen=True)
+class EnvSnapshot:
+    """The simulator's state and the episode's counters at one moment (:meth:`TvfEnv.snapshot`)."""
+
+    state: int
+    """PyBullet's in-memory saved state."""
+    steps: int
+    terminated: bool
+    last_obs: dict | None
+    coverage: dict
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     step_slack: int = 0
@@ -239,6 +251,25 @@ class TvfEnv(gym.Env):
         terminated = self.terminated = progress.success
         truncated = not terminated and self.steps >= self.max_steps
         return obs, progress.fraction - before, terminated, truncated, info
+
+    def snapshot(self) -> EnvSnapshot:
+        """The scene and the episode's counters now, so that actions can be tried and undone with
+        :meth:`restore` (the planner's simulated foresight, :mod:`tvf.planning.simulated`). Each snapshot
+        holds simulator memory until it is restored without ``keep`` or :meth:`forget`-ed."""
+        if self.seed_value is None:
+            raise TvfError("call reset() before snapshot()")
+        coverage = dict(self.coverage)
+        return EnvSnapshot(self.world.save_state(), self.steps, self.terminated, self._last_obs, coverage)
+
+    def restore(self, snapshot: EnvSnapshot, keep: bool = False) -> None:
+        """Put the scene and the counters back as they were at ``snapshot`` (``keep``: restorable again)."""
+        self.world.restore_state(snapshot.state, remove=not keep)
+        self.steps, self.terminated = snapshot.steps, snapshot.terminated
+        self._last_obs, self.coverage = snapshot.last_obs, dict(snapshot.coverage)
+
+    def forget(self, snapshot: EnvSnapshot) -> None:
+        """Free a snapshot's simulator memory without restoring it."""
+        self.world.forget_state(snapshot.state)
 
     def oracle_action(self) -> np.ndarray | None:
         """The expert's next action for the current scene (None when it has nothing to do)."""

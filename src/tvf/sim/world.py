@@ -215,7 +215,11 @@ class World:
     def restore_state(self, state: int, remove: bool = True) -> None:
         p.restoreState(stateId=state, physicsClientId=self.client)
         if remove:
-            p.removeState(state, physicsClientId=self.client)
+            self.forget_state(state)
+
+    def forget_state(self, state: int) -> None:
+        """Free a state of :meth:`save_state` that will not be restored."""
+        p.removeState(state, physicsClientId=self.client)
 
     # ---------------------------------------------------------------- sensing
     def views(self, rig: Rig | None = None) -> tuple[list[View], tuple[PinholeCamera, ...]]:

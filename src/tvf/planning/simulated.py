@@ -1,0 +1,101 @@
+"""TVF's search with the simulator as its foresight: what a perfect foresight model would buy.
+
+The tree is the one of :class:`~tvf.planning.search.TreeSearch` (the same GCTN proposals per node, the
+same score ``gamma**(d-1) * (C - D(o, o_goal))``, the same choice of the executed action), but every
+proposal is *executed* in the simulator from a snapshot of its parent's scene instead of imagined by the
+VF, and its node is scored and expanded from the real observation that results. The search reads the
+environment it will act in and puts it back exactly (:meth:`tvf.sim.env.TvfEnv.snapshot`), so it is an
+upper bound for research (``tvf eval --foresight simulator``), not a method for a real robot. The tree
+is expanded breadth-first, one node at a time (a simulator step is ~0.4 s on a laptop core, a TVF-L
+decision 39 steps); a node whose action finishes the structure is not expanded further.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tvf.errors import TvfError
+from tvf.models.images import to_rgbh
+from tvf.planning.actions import bin_action
+from tvf.planning.search import Node, Plan, TreeSearch, best_node, height_distance
+
+FORESIGHTS = ("vf", "simulator")
+"""What the search's nodes are scored from: the VF's imagined images (TVF) or the simulator's outcomes."""
+
+
+class SimulatedSearch:
+    """The TVF search of ``proposer``'s GCTN and planner settings, with ``env`` (a simulator with
+    ``snapshot``/``restore``/``forget``) in place of the VF."""
+
+    def __init__(self, proposer: TreeSearch, env, refine_yaw: bool = False) -> None:
+        missing = [name for name in ("snapshot", "restore", "forget") if not hasattr(env, name)]
+        if missing:
+            raise TvfError(
+                f"simulated foresight needs an environment that can save and restore its scene "
+                f"(tvf.sim.env.TvfEnv); {type(env).__name__} has no {', '.join(missing)}"
+            )
+        self.proposer, self.env, self.refine_yaw = proposer, env, refine_yaw
+        self.config = proposer.config
+
+    def _children(self, obs: dict, goal: dict, level: int) -> list[tuple[Node, np.ndarray]]:
+        """The proposals of the scene ``obs`` at ``level`` as (unscored node, world action) pairs."""
+        current, target = to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
+        props, bins = self.proposer.propose(current, target, level)
+        goal_height = goal["height"] if self.refine_yaw else None
+        n = self.proposer.n_rotations
+        out = []
+        for pick, place, rot in zip(props.picks, props.places, bins, strict=True):
+            action = bin_action(pick, place, int(rot), n, obs["height"], goal_height)
+            out.append((Node(-1, -1, level, pick, place, int(rot), 0.0, 0.0), action))
+        return out
+
+    @torch.no_grad()
+    def search(self, obs: dict, goal: dict, keep_images: bool = False) -> tuple[Plan, list[np.ndarray]]:
+        """Plan from the environment's current scene, whose observation is ``obs``, towards ``goal``
+        (``{"color", "height"}`` each). Returns the plan and each node's world action; the environment is
+        left as it was found."""
+        cfg, env = self.config, self.env
+        goal_rgbh = to_rgbh(goal["color"], goal["height"])
+        plan = Plan([], -1, counts=dict(gctn_calls=0, vf_calls=0, gctn_states=0, vf_states=0, sim_steps=0))
+        actions: list[np.ndarray] = []
+        images: list[torch.Tensor] = []
+        root = env.snapshot()
+        held: dict[int, object] = {}  # the frontier's snapshots, freed as soon as their children exist
+
+        def hold():
+            snapshot = env.snapshot()
+            held[id(snapshot)] = snapshot
+            return snapshot
+
+        frontier = [(root, obs, -1)]
+        try:
+            for level in range(1, cfg.depth + 1):
+                grown = []
+                for snapshot, scene, parent in frontier:
+                    plan.counts["gctn_calls"] += 1
+                    plan.counts["gctn_states"] += 1
+                    for node, action in self._children(scene, goal, level):
+                        env.restore(snapshot, keep=True)
+                        seen, _, finished, _, _ = env.step(action)
+                        plan.counts["sim_steps"] += 1
+                        rgbh = to_rgbh(seen["color"], seen["height"])
+                        node.index, node.parent = len(plan.nodes), parent
+                        node.distance = float(height_distance(rgbh, goal_rgbh)[0])
+                        node.score = cfg.gamma ** (level - 1) * (cfg.bonus - node.distance)
+                        plan.nodes.append(node)
+                        actions.append(action)
+                        if keep_images:
+                            images.append(rgbh[0])
+                        if level < cfg.depth and not finished:
+                            grown.append((hold(), seen, node.index))
+                    if snapshot is not root:
+                        env.forget(held.pop(id(snapshot)))
+                frontier = grown
+        finally:
+            for snapshot in held.values():
+                env.forget(snapshot)
+            env.restore(root)
+        plan.best = best_node(plan.nodes, cfg.tie_band)
+        plan.images = torch.stack(images) if keep_images and images else None
+        return plan, actions
