@@ -191,7 +191,10 @@ class AblateCmd:
         ablation_cells(spec, ks, depths)
         # a bad flag or checkpoint fails before any cell runs (a simulated foresight's policy needs its
         # episode's simulator: its flags only)
-        check_spec(spec) if needs_env(spec) else make_policy(spec)
+        if needs_env(spec):
+            check_spec(spec)
+        else:
+            make_policy(spec)
         check_output_dir(self.out)
         run_ablation(spec, ks, depths, tasks, self.episodes, self.seed_start, self.workers, self.out,
                      self.step_slack)  # fmt: skip

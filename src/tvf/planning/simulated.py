@@ -38,9 +38,10 @@ class SimulatedSearch:
         self.proposer, self.env, self.refine_yaw = proposer, env, refine_yaw
         self.config = proposer.config
 
-    def _children(self, obs: dict, goal: dict, level: int) -> list[tuple[Node, np.ndarray]]:
-        """The proposals of the scene ``obs`` at ``level`` as (unscored node, world action) pairs."""
-        current, target = to_rgbh(obs["color"], obs["height"]), to_rgbh(goal["color"], goal["height"])
+    def _children(self, obs: dict, current: torch.Tensor, goal: dict, target: torch.Tensor, level: int
+                  ) -> list[tuple[Node, np.ndarray]]:  # fmt: skip
+        """The proposals of the scene ``obs`` (``current``: its RGB-H) towards ``goal`` (``target``) at
+        ``level`` as (unscored node, world action) pairs."""
         props, bins = self.proposer.propose(current, target, level)
         goal_height = goal["height"] if self.refine_yaw else None
         n = self.proposer.n_rotations
@@ -68,14 +69,14 @@ class SimulatedSearch:
             held[id(snapshot)] = snapshot
             return snapshot
 
-        frontier = [(root, obs, -1)]
+        frontier = [(root, obs, to_rgbh(obs["color"], obs["height"]), -1)]
         try:
             for level in range(1, cfg.depth + 1):
                 grown = []
-                for snapshot, scene, parent in frontier:
+                for snapshot, scene, scene_rgbh, parent in frontier:
                     plan.counts["gctn_calls"] += 1
                     plan.counts["gctn_states"] += 1
-                    for node, action in self._children(scene, goal, level):
+                    for node, action in self._children(scene, scene_rgbh, goal, goal_rgbh, level):
                         env.restore(snapshot, keep=True)
                         seen, _, finished, _, _ = env.step(action)
                         plan.counts["sim_steps"] += 1
@@ -88,7 +89,7 @@ class SimulatedSearch:
                         if keep_images:
                             images.append(rgbh[0])
                         if level < cfg.depth and not finished:
-                            grown.append((hold(), seen, node.index))
+                            grown.append((hold(), seen, rgbh, node.index))
                     if snapshot is not root:
                         env.forget(held.pop(id(snapshot)))
                 frontier = grown
