@@ -54,7 +54,7 @@ def files(root: Path) -> dict[str, bytes]:
 FAILING_SEED = 2
 
 
-def scripted_episode(task, split: str, seed: int, sensor: str = "ideal"):
+def scripted_episode(task, split: str, seed: int, sensor: str = "ideal", near_misses: int = 0):
     """The episode job's simulation, replaced: small synthetic episodes; seed 2 fails (failures.jsonl)."""
     name = task if isinstance(task, str) else task.name
     if seed == FAILING_SEED:

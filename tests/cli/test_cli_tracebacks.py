@@ -127,3 +127,11 @@ def test_the_command_line_parser_imports_neither_torch_nor_pybullet():
 
     code = "import sys, tvf.cli; assert not {'torch', 'pybullet'} & set(sys.modules), sorted(sys.modules)"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize(("split", "near"), [("test", "1"), ("train", "-1")])
+def test_demos_near_misses_need_the_train_split_and_a_count(capsys, tmp_path, split, near):
+    out = str(tmp_path / "d")
+    err = one_line_error(capsys, "demos", "--split", split, "--near-misses", near, "--out", out)
+    assert "--near-misses" in err and "--split train" in err
+    assert not (tmp_path / "d").exists()

@@ -9,14 +9,24 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import pytest
 from data_factory import make_episode
 
 from tvf.data import GenerationPlan, generate, open_dataset, read_episode, split_seeds
 from tvf.data.dataset import FAILURES, MANIFEST
-from tvf.data.format import episode_name, write_h5
-from tvf.data.generation import Outcome, action_schedule, read_failures
+from tvf.data.format import DataError, episode_name, write_h5
+from tvf.data.generation import (
+    Outcome,
+    action_schedule,
+    check_near_misses,
+    collect_episode,
+    read_failures,
+    step_kinds,
+)
+from tvf.geometry import WORKSPACE
 from tvf.io import temp_path
-from tvf.tasks import Task, get_task
+from tvf.sim.oracle import NEAR_MISS_OFFSET, NEAR_MISS_TURN, near_miss
+from tvf.tasks import BLOCK_SIZE, Task, get_task
 
 
 def test_split_seeds_have_the_split_parity():
@@ -163,3 +173,57 @@ def test_real_two_workers_match_one_worker(real_root, tmp_path):
     for a, b in zip(one.infos(), two.infos(), strict=True):
         assert (a.task, a.seed) == (b.task, b.seed)
         assert _same_episode(read_episode(a.path), read_episode(b.path))
+
+
+# --------------------------------------------------------------------------- near misses (--near-misses)
+def test_step_kinds_put_near_misses_before_oracle_steps():
+    task = get_task("stack-palace")
+    plain = step_kinds(task, "train", 4)
+    assert plain == ["random" if r else "oracle" for r in action_schedule(task, "train", 4)]
+    kinds = step_kinds(task, "train", 4, near_misses=3)
+    assert kinds == step_kinds(task, "train", 4, near_misses=3)  # from the seed only
+    assert kinds.count("near") == 3 and kinds.count("random") == 2
+    assert all(kinds[i + 1] == "oracle" for i, k in enumerate(kinds) if k == "near")
+    assert [k for k in kinds if k != "near"] == plain + ["oracle"] * 6  # two repairs per near miss
+    with pytest.raises(DataError, match="train-split"):
+        step_kinds(task, "test", 5, near_misses=1)
+
+
+def test_near_miss_moves_only_the_place_and_by_at_most_its_bounds():
+    rng = np.random.default_rng(0)
+    action = np.array([[0.4, 0.0, 0.04, 0.0], [0.5, 0.1, 0.04, 0.3]])
+    offsets, turns = [], []
+    for _ in range(500):
+        moved = near_miss(action, rng)
+        assert np.array_equal(moved[0], action[0]) and moved[1, 2] == action[1, 2]
+        offsets.append(np.hypot(*(moved[1, :2] - action[1, :2])))
+        turns.append(abs(moved[1, 3] - action[1, 3]))
+    assert max(offsets) <= NEAR_MISS_OFFSET + 1e-12 and max(turns) <= NEAR_MISS_TURN + 1e-12
+    assert np.median(offsets) > NEAR_MISS_OFFSET / 2  # uniform over the disc, not bunched at the centre
+    edge = near_miss(np.array([[0.4, 0.0, 0.04, 0.0], [0.745, -0.245, 0.04, 0.0]]), rng)
+    assert edge[1, 0] <= WORKSPACE.x_max - BLOCK_SIZE and edge[1, 1] >= WORKSPACE.y_min + BLOCK_SIZE
+
+
+def test_a_near_miss_folder_refuses_other_settings(tmp_path):
+    folder = tmp_path / "train"
+    folder.mkdir()
+    check_near_misses(folder, 2)
+    check_near_misses(folder, 2)  # resuming with the same number
+    with pytest.raises(DataError, match="--near-misses 2"):
+        check_near_misses(folder, 0)
+    with pytest.raises(DataError, match="0 or more"):
+        check_near_misses(tmp_path, -1)
+
+
+def test_real_near_miss_episode():
+    """A real episode with two near misses: each is a random step before an expert step, the place moved
+    a little off the expert's next place, and the structure still finished (this seed did not before the
+    expert repaired the near-missed block first: it sat on its own target's spot)."""
+    task = get_task("stack-stair")
+    ep, out = collect_episode(task, "train", 0, near_misses=2)
+    assert out.ok, out.reason
+    near = ep.attrs["near_misses"]
+    assert len(near) == 2 and all(ep.random[i] and not ep.random[i + 1] for i in near)
+    assert ep.n_random == 4 and ep.progress[-1] == 1.0
+    plain, _ = collect_episode(task, "train", 0)
+    assert "near_misses" not in plain.attrs and plain.n_random == 2

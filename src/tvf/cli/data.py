@@ -46,6 +46,12 @@ class DemosCmd:
     sensor: str = "ideal"
     """Record the images through these cameras (tvf.sim.sensors; docs/real-robot.md), e.g. d415-one:
     training data for a planner that must work under noise. One sensor per split folder."""
+    near_misses: int = 0
+    """Train split: before this many of each episode's expert steps, a *near miss*: the expert's action
+    with its place moved by up to 8 pixels and turned by up to 10 degrees, executed and stored as a
+    random step (the GCTN skips it), then up to two expert steps per near miss to repair it. Data for
+    a foresight that must tell which of the GCTN's near-duplicate places land, slide or topple
+    (docs/data.md); use its own --out. 0: the reference's episodes."""
 
     def run(self) -> None:
         from tvf.data.format import SPLITS
@@ -59,10 +65,13 @@ class DemosCmd:
         if self.split not in SPLITS:
             raise TvfError(f"--split must be one of {', '.join(SPLITS)}, got {self.split!r}")
         at_least_one(episodes=self.episodes, workers=self.workers, max_tries=self.max_tries)
+        if self.near_misses < 0 or (self.near_misses and self.split != "train"):
+            raise TvfError(f"--near-misses {self.near_misses}: give 0 or more, with --split train (foresight "
+                           "data; the test split is the pure expert)")  # fmt: skip
         tasks = tuple(t.name for t in table.resolve(self.tasks))
         check_output_dir(self.out / self.split)
         plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries,
-                              self.sensor)  # fmt: skip
+                              self.sensor, self.near_misses)  # fmt: skip
         report = generate(plan, self.workers, progress=True, tasks=table, backend=self.backend,
                           address=self.address)  # fmt: skip
         print(

@@ -48,7 +48,7 @@ from tvf.io import (
 )
 from tvf.parallel import check_backend, make_pool, sigterm_raises
 from tvf.sim.env import EnvConfig, TvfEnv
-from tvf.sim.oracle import random_schedule
+from tvf.sim.oracle import near_miss, random_schedule
 from tvf.sim.sensors import get_sensor
 from tvf.tasks import BUILTIN, Task, TaskTable
 
@@ -57,6 +57,8 @@ N_RANDOM = 2
 LOCK = ".tvf-demos.lock"
 SENSOR_FILE = "sensor.json"
 """Names the sensor of a split folder recorded through one other than ``ideal`` (tvf.sim.sensors)."""
+NEAR_MISS_FILE = "near-misses.json"
+"""Names the near misses per episode of a split folder made with ``--near-misses`` (:func:`step_kinds`)."""
 
 
 # ------------------------------------------------------------------------------------ one episode
@@ -77,14 +79,39 @@ def action_schedule(task, split: str, seed: int) -> list[bool]:
     return random_schedule(task.n_blocks + N_RANDOM, N_RANDOM, rng)
 
 
-def _new_env(task: Task | str, split: str, sensor: str = "ideal"):
-    """A fresh environment (its own PyBullet client) for one episode; train allows the two extra steps.
+def step_kinds(task, split: str, seed: int, near_misses: int = 0) -> list[str]:
+    """The episode's steps in order: "oracle", "random" (:func:`action_schedule`) and, with
+    ``near_misses``, that many "near" steps, each just before one of the oracle steps (drawn from the fifth
+    stream of ``SeedSequence(seed)``), then two "oracle" steps per near miss to repair what it upset.
+    Without near misses the episode is the plain one, bit for bit."""
+    schedule = action_schedule(task, split, seed)
+    kinds = ["random" if r else "oracle" for r in schedule]
+    if not near_misses:
+        return kinds
+    if split != "train":
+        raise DataError("--near-misses makes train-split data (for the foresight); drop it for --split test")
+    oracle_steps = [i for i, r in enumerate(schedule) if not r]
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(5)[4])
+    before = set(rng.choice(oracle_steps, size=min(near_misses, len(oracle_steps)), replace=False).tolist())
+    out = [k for i, kind in enumerate(kinds) for k in (["near", kind] if i in before else [kind])]
+    return out + ["oracle"] * (2 * near_misses)
+
+
+def near_miss_rng(seed: int) -> np.random.Generator:
+    """The stream that moves the near misses' places (the sixth of ``SeedSequence(seed)``)."""
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[5])
+
+
+def _new_env(task: Task | str, split: str, sensor: str = "ideal", near_misses: int = 0):
+    """A fresh environment (its own PyBullet client) for one episode; train allows the two extra steps
+    (and three per near miss: itself and two repairs).
 
     Fresh, not cached, so an episode cannot depend on what its worker ran before. (A simulator that
     only removed the last scene's bodies left 0.1 mm traces; ``World.clear`` now resets the simulation
     fully and a reused environment is bit-identical too, but a fresh one costs only about 0.1 s.)
     """
-    return TvfEnv(task, EnvConfig(step_slack=N_RANDOM if split == "train" else 0), sensor=sensor)
+    slack = N_RANDOM + 3 * near_misses if split == "train" else 0
+    return TvfEnv(task, EnvConfig(step_slack=slack), sensor=sensor)
 
 
 def _config_attrs(env) -> dict[str, Any]:
@@ -125,18 +152,32 @@ def _state(env) -> tuple[np.ndarray, float]:
 
 
 def collect_episode(
-    task: Task | str, split: str, seed: int, sensor: str = "ideal"
+    task: Task | str, split: str, seed: int, sensor: str = "ideal", near_misses: int = 0
 ) -> tuple[Episode | None, Outcome]:  # fmt: skip
     """Run one episode in this process, its images seen through ``sensor`` (tvf.sim.sensors; the oracle
-    acts on true poses); returns (episode, outcome) with episode None on failure."""
-    env = _new_env(task, split, sensor)
+    acts on true poses), with ``near_misses`` of the expert's places moved a little off
+    (:func:`step_kinds`); returns (episode, outcome) with episode None on failure."""
+    env = _new_env(task, split, sensor, near_misses)
     try:
-        return _run_episode(env, split, seed)
+        return _run_episode(env, split, seed, near_misses)
     finally:
         env.close()
 
 
-def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
+def _next_action(env, kind: str, jitter: np.random.Generator, missed: int | None) -> np.ndarray | None:
+    """The step's action; ``missed``: the block a near miss just moved, which the expert repairs first."""
+    if kind == "random":
+        return env.random_action()
+    action = env.oracle_action() if missed is None else env.oracle_action(first=missed)
+    return near_miss(action, jitter) if kind == "near" and action is not None else action
+
+
+def _moved_block(before: np.ndarray, after: np.ndarray) -> int:
+    """The block that moved farthest between two (n, 4) pose arrays: the one a step carried."""
+    return int(np.argmax(np.linalg.norm(after[:, :3] - before[:, :3], axis=1)))
+
+
+def _run_episode(env, split: str, seed: int, near_misses: int = 0) -> tuple[Episode | None, Outcome]:
     task = env.task.name
     out = Outcome(task, seed, False)
     try:
@@ -149,20 +190,24 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
     b, p = _state(env)
     blocks.append(b)
     progress.append(p)
-    for step, is_random in enumerate(action_schedule(env.task, split, seed)):
-        action = env.random_action() if is_random else env.oracle_action()
+    kinds = step_kinds(env.task, split, seed, near_misses)
+    jitter = near_miss_rng(seed)
+    missed = None
+    for step, kind in enumerate(kinds):
+        action = _next_action(env, kind, jitter, missed)
         if action is None:
-            kind = "random action found no free pose" if is_random else "oracle had no action"
-            out.reason = f"{kind} at step {step}"
+            why = "random action found no free pose" if kind == "random" else "oracle had no action"
+            out.reason = f"{why} at step {step}"
             break
         obs, _, terminated, _, info = env.step(action)
         colors.append(obs["color"])
         heights.append(obs["height"])
         picks.append(action[0])
         places.append(action[1])
-        randoms.append(is_random)
+        randoms.append(kind != "oracle")
         out.primitives.append(str(info["primitive"]))
         b, p = _state(env)
+        missed = _moved_block(blocks[-1], b) if kind == "near" else None
         blocks.append(b)
         progress.append(p)
         if terminated:
@@ -175,6 +220,8 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
         return None, out
     out.ok = True
     tpos, tyaw = env.world.target_poses()
+    near_steps = [i for i, kind in enumerate(kinds[: len(picks)]) if kind == "near"]
+    near = {"near_misses": near_steps} if near_misses else {}
     episode = Episode(
         task=env.task.name,
         seed=seed,
@@ -188,16 +235,18 @@ def _run_episode(env, split: str, seed: int) -> tuple[Episode | None, Outcome]:
         blocks=np.stack(blocks),
         targets=np.concatenate([tpos, tyaw[:, None]], axis=1).astype(np.float32),
         success=True,
-        attrs={"n_blocks": env.task.n_blocks, "primitives": out.primitives, **_config_attrs(env)},
+        attrs={"n_blocks": env.task.n_blocks, "primitives": out.primitives, **_config_attrs(env), **near},
     )
     return episode, out
 
 
-def episode_job(task: Task, split: str, seed: int, folder: str | None, sensor: str = "ideal") -> Outcome:
+def episode_job(
+    task: Task, split: str, seed: int, folder: str | None, sensor: str = "ideal", near_misses: int = 0
+) -> Outcome:  # fmt: skip
     """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
     parent renames into place once every smaller seed of the task is settled (``folder`` None: return the
     file's bytes in ``Outcome.data`` for the parent to write)."""
-    episode, out = collect_episode(task, split, seed, sensor)
+    episode, out = collect_episode(task, split, seed, sensor, near_misses)
     if episode is not None and folder is None:
         out.data = h5_bytes(episode)
     elif episode is not None:
@@ -228,6 +277,8 @@ class GenerationPlan:
     """Seeds tried per task, as a multiple of ``episodes`` (at least ``episodes + 5``)."""
     sensor: str = "ideal"
     """The cameras the images are recorded through (a name of tvf.sim.sensors.SENSORS)."""
+    near_misses: int = 0
+    """Train split: this many of each episode's expert places moved a little off (:func:`step_kinds`)."""
 
     @property
     def folder(self) -> Path:
@@ -420,8 +471,9 @@ def generate(
     start = time.perf_counter()
     with _Lock(folder), sigterm_raises():
         check_sensor(folder, plan.sensor)
-        if job is None and plan.sensor != "ideal":
-            job = partial(episode_job, sensor=plan.sensor)
+        check_near_misses(folder, plan.near_misses)
+        if job is None and (plan.sensor != "ideal" or plan.near_misses):
+            job = partial(episode_job, sensor=plan.sensor, near_misses=plan.near_misses)
         remove_stale_tmp(folder)
         states = _initial_states(plan, report)
         total = sum(min(s.want, len(s.seeds)) - s.kept for s in states)
@@ -497,6 +549,26 @@ def check_sensor(folder: Path, sensor: str) -> None:
     if sensor != "ideal" and not path.exists():
         named = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
         atomic_write_json(path, named)
+
+
+def check_near_misses(folder: Path, near_misses: int) -> None:
+    """Refuse to add episodes with another number of near misses to a split folder; name a new folder's."""
+    if near_misses < 0:
+        raise DataError(f"--near-misses must be 0 or more, not {near_misses}")
+    path = folder / NEAR_MISS_FILE
+    try:
+        recorded = int(json.loads(path.read_text())["near_misses"]) if path.exists() else 0
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(
+            f"{path}: unreadable ({exc!r}); it names the folder's near misses per episode"
+        ) from None
+    if recorded != near_misses and (path.exists() or episode_files(folder)):
+        raise DataError(
+            f"{folder} holds demonstrations with {recorded} near misses each; pass --near-misses {recorded} "
+            f"to resume it, or choose another --out"
+        )
+    if near_misses and not path.exists():
+        atomic_write_json(path, {"near_misses": near_misses})
 
 
 def _sensor_record(folder: Path) -> dict[str, str]:

@@ -271,9 +271,10 @@ class TvfEnv(gym.Env):
         """Free a snapshot's simulator memory without restoring it."""
         self.world.forget_state(snapshot.state)
 
-    def oracle_action(self) -> np.ndarray | None:
-        """The expert's next action for the current scene (None when it has nothing to do)."""
-        return oracle_action(self.world, self.order, self._oracle_rng)
+    def oracle_action(self, first: int | None = None) -> np.ndarray | None:
+        """The expert's next action for the current scene (None when it has nothing to do); ``first``: a
+        block to move first if it is off its target (tvf.sim.oracle.oracle_action)."""
+        return oracle_action(self.world, self.order, self._oracle_rng, first)
 
     def random_action(self) -> np.ndarray | None:
         """Move the block the expert would move next to a random free pose (for foresight data)."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as p
 
-from tvf.geometry import rotate_xy, wrap_angle, wrap_symmetric
+from tvf.geometry import PIXEL_SIZE, WORKSPACE, rotate_xy, wrap_angle, wrap_symmetric
 from tvf.sim.success import evaluate_structure
 from tvf.sim.world import BLOCK_RADIUS, CELL_RADIUS, World, layout_cell_centres, sample_free_pose
 from tvf.tasks import BLOCK_SIZE, BLOCK_SYMMETRY
@@ -19,6 +19,11 @@ PICK_INSET = 0.008
 """The oracle picks within the block's top face shrunk by this much (m) on each side."""
 RAY_TOP = 0.2
 """Visibility rays start here: above any structure, below the arm's travel height."""
+NEAR_MISS_OFFSET = 8 * PIXEL_SIZE
+"""A near miss moves the expert's place by up to this much (m): 8 pixels, 2.5 cm, a little more than a
+block's half-width, so its outcomes range from landing right to sliding off or toppling a tower."""
+NEAR_MISS_TURN = np.deg2rad(10.0)
+"""... and turns it by up to this much (one of the paper's 36 rotation bins)."""
 
 
 def make_action(pick_xyz, pick_yaw: float, place_xyz, place_yaw: float) -> np.ndarray:
@@ -67,15 +72,19 @@ def ready_targets(world: World, order: tuple[tuple[int, ...], ...]) -> list[int]
 
 
 def oracle_action(
-    world: World, order: tuple[tuple[int, ...], ...], rng: np.random.Generator
+    world: World, order: tuple[tuple[int, ...], ...], rng: np.random.Generator, first: int | None = None
 ) -> np.ndarray | None:
-    """The expert's next action, or None when the structure is finished or nothing can be picked."""
+    """The expert's next action, or None when the structure is finished or nothing can be picked.
+
+    ``first``: move this block first if it is loose (the repair of a near miss, which the farthest-first
+    rule would leave where it fell, sometimes on the spot of its own target)."""
     targets = ready_targets(world, order)
     if not targets:
         return None
     pos, yaw = world.block_poses()
     tpos, tyaw = world.target_poses()
-    for block, target in _loose_blocks_by_distance(world, targets):
+    pairs = sorted(_loose_blocks_by_distance(world, targets), key=lambda pair: pair[0] != first)
+    for block, target in pairs:
         pick = _pick_point(world, block, rng)
         if pick is None:
             continue
@@ -110,6 +119,25 @@ def random_action(
         place_z = BLOCK_SIZE / 2 + (pick[2] - pos[block, 2])
         return make_action(pick, 0.0, (*place_xy, place_z), delta)
     return None
+
+
+def near_miss(action: np.ndarray, rng: np.random.Generator, max_offset: float = NEAR_MISS_OFFSET,
+              max_turn: float = NEAR_MISS_TURN) -> np.ndarray:  # fmt: skip
+    """The expert's ``action`` placed a little off, as a learned policy a few pixels wrong places it.
+
+    The place is moved by an offset drawn uniformly from the disc of radius ``max_offset`` (kept a block
+    inside the workspace) and its yaw turned by up to ``max_turn``; the pick is the expert's. Executed,
+    its outcomes (the block lands right, slides, topples or knocks another) are the foresight's data for
+    the GCTN's near-duplicate places (``tvf demos --near-misses``)."""
+    out = np.array(action, dtype=np.float64, copy=True)
+    radius, angle = max_offset * np.sqrt(rng.uniform()), rng.uniform(0.0, 2 * np.pi)
+    x = out[1, 0] + radius * np.cos(angle)
+    y = out[1, 1] + radius * np.sin(angle)
+    margin = BLOCK_SIZE  # the block stays pickable (its centre in the workspace) after it slides
+    out[1, 0] = np.clip(x, WORKSPACE.x_min + margin, WORKSPACE.x_max - margin)
+    out[1, 1] = np.clip(y, WORKSPACE.y_min + margin, WORKSPACE.y_max - margin)
+    out[1, 3] = wrap_angle(out[1, 3] + rng.uniform(-max_turn, max_turn))
+    return out
 
 
 def random_schedule(n_steps: int, n_random: int, rng: np.random.Generator) -> list[bool]:
