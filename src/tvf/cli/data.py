@@ -65,13 +65,10 @@ class DemosCmd:
         if self.split not in SPLITS:
             raise TvfError(f"--split must be one of {', '.join(SPLITS)}, got {self.split!r}")
         at_least_one(episodes=self.episodes, workers=self.workers, max_tries=self.max_tries)
-        if self.near_misses < 0 or (self.near_misses and self.split != "train"):
-            raise TvfError(f"--near-misses {self.near_misses}: give 0 or more, with --split train (foresight "
-                           "data; the test split is the pure expert)")  # fmt: skip
         tasks = tuple(t.name for t in table.resolve(self.tasks))
-        check_output_dir(self.out / self.split)
         plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries,
                               self.sensor, self.near_misses)  # fmt: skip
+        check_output_dir(self.out / self.split)
         report = generate(plan, self.workers, progress=True, tasks=table, backend=self.backend,
                           address=self.address)  # fmt: skip
         print(

@@ -168,7 +168,7 @@ def _next_action(env, kind: str, jitter: np.random.Generator, missed: int | None
     """The step's action; ``missed``: the block a near miss just moved, which the expert repairs first."""
     if kind == "random":
         return env.random_action()
-    action = env.oracle_action() if missed is None else env.oracle_action(first=missed)
+    action = env.oracle_action(first=missed)
     return near_miss(action, jitter) if kind == "near" and action is not None else action
 
 
@@ -279,6 +279,11 @@ class GenerationPlan:
     """The cameras the images are recorded through (a name of tvf.sim.sensors.SENSORS)."""
     near_misses: int = 0
     """Train split: this many of each episode's expert places moved a little off (:func:`step_kinds`)."""
+
+    def __post_init__(self) -> None:
+        if self.near_misses < 0 or (self.near_misses and self.split != "train"):
+            raise DataError(f"--near-misses {self.near_misses}: give 0 or more, with --split train "
+                            "(foresight data; the test split is the pure expert)")  # fmt: skip
 
     @property
     def folder(self) -> Path:
