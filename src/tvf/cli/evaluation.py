@@ -72,7 +72,7 @@ class EvalCmd:
     def run(self) -> None:
         from tvf.evaluate.closed_loop import evaluate, summary_markdown
         from tvf.evaluate.runner import check_envs_per_worker, env_factory
-        from tvf.policies import check_spec, make_policy, needs_env
+        from tvf.policies import check_policy
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
@@ -80,10 +80,7 @@ class EvalCmd:
         envs = env_factory(self.env)
         check_envs_per_worker(self.envs_per_worker, envs)
         spec = self.spec()
-        if not needs_env(spec):
-            make_policy(spec)  # fail fast on a bad method or checkpoint, before any worker starts
-        else:
-            check_spec(spec)
+        check_policy(spec)
         check_output_dir(self.out)
         summary = evaluate(
             spec,
@@ -181,7 +178,7 @@ class AblateCmd:
 
     def run(self) -> None:
         from tvf.experiment.ablation import ablation_cells, parse_grid, run_ablation
-        from tvf.policies import check_spec, make_policy, needs_env
+        from tvf.policies import check_policy
         from tvf.tasks import load_tasks
 
         at_least_one(episodes=self.episodes, workers=self.workers)
@@ -189,12 +186,7 @@ class AblateCmd:
         tasks = load_tasks(self.task_file).resolve(self.tasks)
         spec = self.planner.spec(self.method, device=self.device)
         ablation_cells(spec, ks, depths)
-        # a bad flag or checkpoint fails before any cell runs (a simulated foresight's policy needs its
-        # episode's simulator: its flags only)
-        if needs_env(spec):
-            check_spec(spec)
-        else:
-            make_policy(spec)
+        check_policy(spec)
         check_output_dir(self.out)
         run_ablation(spec, ks, depths, tasks, self.episodes, self.seed_start, self.workers, self.out,
                      self.step_slack)  # fmt: skip

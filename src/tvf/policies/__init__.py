@@ -10,6 +10,7 @@ from tvf.policies.registry import (
     PolicySpec,
     centre_picks_of,
     centred_share_of,
+    check_policy,
     check_spec,
     foresight_of,
     forget_cached_policies,
@@ -30,7 +31,7 @@ from tvf.policies.registry import (
 __all__ = [
     "LEARNED_METHODS", "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation",
     "OraclePolicy", "Policy", "PolicySpec", "SimulatedTvfPolicy", "TvfPolicy", "act_all", "centre_picks_of",
-    "centred_share_of", "check_spec", "foresight_of", "forget_cached_policies", "get_method",
+    "centred_share_of", "check_policy", "check_spec", "foresight_of", "forget_cached_policies", "get_method",
     "goal_mask_of", "label", "make_policy", "mask_places_of", "needs_env", "paper_method", "planner_of",
     "policy_for", "refine_yaw_of", "resolved_settings", "turns_of",
 ]  # fmt: skip

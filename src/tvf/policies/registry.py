@@ -386,6 +386,15 @@ def _check_centred_share(spec: PolicySpec) -> None:
                        "--mask-places ordered (or centred, layered, cells)")  # fmt: skip
 
 
+def check_policy(spec: PolicySpec) -> None:
+    """Fail fast, before any worker or cell starts, on a bad method, flag or checkpoint: the policy is
+    built (its models read) unless it needs its episode's simulator, whose flags alone are checked."""
+    if needs_env(spec):
+        check_spec(spec)
+    else:
+        make_policy(spec)
+
+
 def policy_for(spec: PolicySpec, env=None) -> Policy:
     """This process's policy for ``spec``: learned ones are loaded once per process and reused."""
     if needs_env(spec):
