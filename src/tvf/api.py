@@ -85,7 +85,8 @@ def load_planner(
     centre_picks: bool | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large, or one of them with the paper's rules:
-    gctn-paper | tvf-small-paper | tvf-large-paper) with the shipped weights, or a run folder, a
+    gctn-paper | tvf-small-paper | tvf-large-paper, or without the image rules: gctn-no-image-rules |
+    tvf-small-no-image-rules | tvf-large-no-image-rules) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
     pick_branches, turns_depth, tie_band, root_k, order_branch, gamma, root_alpha; docs/planner.md);
     ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the

@@ -65,6 +65,9 @@ def test_every_planner_option_of_the_cli_reaches_the_search():
     paper = tvf.load_planner("tvf-large-paper")._policy.search  # the paper's rules, by name
     assert (paper.config.proposals, paper.config.pick_branches, paper.config.tie_band) == ("kmeans", 1, 0.0)
     assert type(paper.gctn).__name__ == "GCTN"  # no turns averaged, nothing read from the height maps
+    bare = tvf.load_planner("tvf-large-no-image-rules")._policy.search  # our search, no image rules
+    assert bare.config == tvf.load_planner("tvf-large")._policy.search.config
+    assert type(bare.gctn).__name__ == "SymmetrizedGCTN" and mask_of(bare.gctn) is None
 
 
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):

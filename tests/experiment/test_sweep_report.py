@@ -75,6 +75,9 @@ def test_a_paper_rules_row_shares_the_papers_number_colour_and_cell():
     styles = method_styles(["gctn", "tvf-large", "gctn-paper", "tvf-large-paper", "mine"])
     assert styles["gctn"] == ("C0", "-", "o") and styles["gctn-paper"] == ("C0", ":", "s")
     assert styles["tvf-large"][0] == styles["tvf-large-paper"][0] == "C1" and styles["mine"][0] == "C2"
+    rows = method_styles(["tvf-small", "tvf-small-paper", "tvf-small-no-image-rules"])  # a third variant
+    assert rows["tvf-small-no-image-rules"] == ("C0", "-.", "^")
+    assert paper_unseen(10, "tvf-small-no-image-rules") == paper_unseen(10, "tvf-small")
     both = paper_task_cell(10, "put-plane", ["gctn", "gctn-paper", "tvf-large-paper"])
     assert both == "GCTN 86.7%, TVF-L 100.0%"  # each paper number once
 

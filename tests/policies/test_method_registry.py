@@ -29,7 +29,10 @@ from tvf.tasks import get_task
 
 
 def test_planner_presets_and_overrides():
-    assert PLANNER_METHODS == ("tvf-small", "tvf-large", "tvf-small-paper", "tvf-large-paper")
+    assert PLANNER_METHODS == (
+        "tvf-small", "tvf-large", "tvf-small-paper", "tvf-large-paper", "tvf-small-no-image-rules",
+        "tvf-large-no-image-rules",
+    )  # fmt: skip
     small, large = planner_of(PolicySpec("tvf-small")), planner_of(PolicySpec("tvf-large"))
     assert (small.k, small.depth, large.k, large.depth) == (2, 1, 3, 3)
     assert (large.proposals, large.pick_branches) == ("nms", 3)  # chosen on validation seeds
@@ -161,7 +164,10 @@ def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():
         make_policy(PolicySpec("tvf-large", goal_mask=False, order_branch=True))
     with pytest.raises(TvfError, match=r"gamma must be in \(0, 1\], got 2.0; fix the planner flags"):
         make_policy(PolicySpec("tvf-large", gamma=2.0))
-    searchers = "tvf-small, tvf-large, tvf-small-paper, tvf-large-paper"
+    searchers = (
+        "tvf-small, tvf-large, tvf-small-paper, tvf-large-paper, tvf-small-no-image-rules, "
+        "tvf-large-no-image-rules"
+    )
     with pytest.raises(TvfError, match=rf"gctn does not search; planner options need one of {searchers} "
                        r"\(drop --tie-band, --order-branch\)"):  # fmt: skip
         make_policy(PolicySpec("gctn", tie_band=0.001, order_branch=True))  # not silently ignored
@@ -186,9 +192,27 @@ def test_the_paper_rules_methods_are_ours_with_every_paper_flag(ours):
     assert paper_method("oracle") is None and paper_method("my-method") is None
 
 
+@pytest.mark.parametrize("ours", ["gctn", "tvf-small", "tvf-large"])
+def test_the_no_image_rules_methods_are_ours_reading_nothing_from_the_height_maps(ours):
+    bare = PolicySpec(f"{ours}-no-image-rules")
+    flags = PolicySpec(ours, goal_mask=False, refine_yaw=False, centre_picks=False)
+
+    def rules(spec):
+        return goal_mask_of(spec), refine_yaw_of(spec), centre_picks_of(spec)
+
+    assert rules(bare) == rules(flags) == (False, False, False) != rules(PolicySpec(ours))
+    assert get_method(bare.method).mask_places == get_method(f"{ours}-paper").mask_places  # the paper's
+    assert get_method(bare.method).turns == get_method(ours).turns > 1  # our turns kept
+    assert paper_method(bare.method) == ours and get_method(bare.method).models == get_method(ours).models
+    if ours != "gctn":  # our search kept, with every override
+        assert planner_of(bare) == planner_of(PolicySpec(ours)) != planner_of(PolicySpec(f"{ours}-paper"))
+        assert planner_of(PolicySpec(bare.method, k=2)).k == 2
+
+
 def test_labels_and_unknown_methods():
     assert [label(m) for m in METHODS] == [
-        "oracle", "GCTN", "TVF-S", "TVF-L", "GCTN, paper rules", "TVF-S, paper rules", "TVF-L, paper rules"
+        "oracle", "GCTN", "TVF-S", "TVF-L", "GCTN, paper rules", "TVF-S, paper rules", "TVF-L, paper rules",
+        "GCTN, no image rules", "TVF-S, no image rules", "TVF-L, no image rules",
     ]  # fmt: skip
     assert label("my-method") == "my-method"
     with pytest.raises(TvfError, match="choose one of oracle, gctn, tvf-small, tvf-large, gctn-paper, "):

@@ -21,13 +21,16 @@ class EvalCmd:
     actions above --root-alpha 0.001; the paper's rule: --proposals kmeans --pick-branches 1 --root-alpha
     0.01). gctn-paper, tvf-small-paper and tvf-large-paper are the three with the paper's rules: no turns
     averaged, nothing read from the height maps, the paper's search (K-means proposals, no tie band).
-    Without --gctn / --vf the shipped lite weights are used.
+    gctn-no-image-rules, tvf-small-no-image-rules and tvf-large-no-image-rules are ours reading nothing
+    from the height maps: our turns and our search only. Without --gctn / --vf the shipped lite weights
+    are used.
     Seeds: the test range by default (never used for a choice); --seed-start 1 is the validation range.
     Example: tvf eval --method tvf-large --tasks unseen --episodes 20 --workers 2 --out eval/tvf-large
     """
 
     method: str = "gctn"
-    """oracle | gctn | tvf-small | tvf-large | gctn-paper | tvf-small-paper | tvf-large-paper."""
+    """oracle | gctn | tvf-small | tvf-large | gctn-paper | tvf-small-paper | tvf-large-paper |
+    gctn-no-image-rules | tvf-small-no-image-rules | tvf-large-no-image-rules."""
     out: Path = Path("out/eval")
     """Output directory (re-running the same command resumes)."""
     k: int | None = None
@@ -157,8 +160,8 @@ class AblateCmd:
     depth: str = "1,2,3,4"
     """Search depths, comma-separated."""
     method: str = "tvf-large"
-    """tvf-small | tvf-large (or either with -paper): the planner whose other settings (proposal rule,
-    picks) every cell keeps."""
+    """tvf-small | tvf-large (or either with -paper or -no-image-rules): the planner whose other settings
+    (proposal rule, picks) every cell keeps."""
     planner: tyro.conf.OmitArgPrefixes[PlannerFlags] = PlannerFlags()
     """The models and the planner's other settings (default: the method's; picks at most K)."""
     tasks: str = "unseen"

@@ -54,7 +54,8 @@ class ExperimentConfig:
     """Tasks evaluated in closed loop: train | unseen | all | NAME[,NAME...]."""
     methods: str = "oracle,gctn,tvf-small,tvf-large"
     """Methods evaluated, comma-separated (the registry's; gctn-paper, tvf-small-paper and tvf-large-paper
-    run the paper's rules, for a row beside the paper's)."""
+    run the paper's rules, for a row beside the paper's; the -no-image-rules three ours without the
+    rules that read the height maps)."""
     episodes: int = 20
     """Closed-loop episodes per task and method (the paper: 20)."""
     seed: int = 0

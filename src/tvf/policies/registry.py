@@ -6,7 +6,7 @@ Every command, the report and the experiment read this table; adding a method is
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 import torch
 
@@ -238,46 +238,68 @@ PAPER_SMALL = PlannerConfig(k=2, depth=1)
 PAPER_LARGE = PlannerConfig(k=3, depth=3)
 """The paper's TVF-Large: K = 3 proposals (k-means over the place map's top pixels), three steps."""
 
+NO_IMAGE_RULES = "-no-image-rules"
+"""The suffix of the methods that run one of ours with none of :data:`IMAGE_RULES` (the Method defaults,
+the paper's: nothing read from the height maps) and everything else of ours: its turns and its search."""
+
+
+def _without_image_rules(method: Method) -> Method:
+    """``method`` reading nothing from the height maps besides its networks (every :data:`IMAGE_RULES` set
+    to the paper's), its GCTN's turns and its search kept: the row that shows what the search buys where
+    the image rules do not already finish every episode (docs/results.md, "The search without the image
+    rules")."""
+    paper = {f.name: f.default for f in fields(Method) if f.name in IMAGE_RULES}
+    return replace(
+        method, name=method.name + NO_IMAGE_RULES, label=f"{method.label}, no image rules", **paper
+    )
+
+
+_OURS: tuple[Method, ...] = (
+    # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
+    # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
+    # (docs/results.md); the paper's is --turns 1
+    Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, **IMAGE_RULES, paper="gctn"),
+    # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
+    # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
+    # paper's rule is --tie-band 0
+    Method(
+        "tvf-small",
+        "TVF-S",
+        _tvf,
+        ("gctn", "vf"),
+        PlannerConfig(k=2, depth=1, turns_depth=1, tie_band=0.002),
+        turns=4,
+        **IMAGE_RULES,
+        paper="tvf-small",
+    ),
+    # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md); its
+    # first actions from a lower threshold (three distinct root proposals in 96.7 % of decisions;
+    # docs/results.md, "Distinct first actions"); the paper's rule is --proposals kmeans
+    # --pick-branches 1 --turns 1 --root-alpha 0.01 with IMAGE_RULES' paper flags
+    Method(
+        "tvf-large",
+        "TVF-L",
+        _tvf,
+        ("gctn", "vf"),
+        PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1, root_alpha=0.001),
+        turns=8,
+        **IMAGE_RULES,
+        paper="tvf-large",
+    ),
+)
+
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
         Method("oracle", "oracle", _oracle, needs_env=True),
-        # every method averages the GCTN over the 4 quarter turns of the scene (TVF: for the root's
-        # proposals only; TVF-L also over their mirror images, turns 8), chosen on validation seeds
-        # (docs/results.md); the paper's is --turns 1
-        Method("gctn", "GCTN", _gctn, models=("gctn",), turns=4, **IMAGE_RULES, paper="gctn"),
-        # TVF-S keeps the GCTN's greedy action unless the foresight shows another clearly better (a tie
-        # band of 0.002, about a seventh of a misplaced block; docs/results.md, "TVF-S's tie band"); the
-        # paper's rule is --tie-band 0
-        Method(
-            "tvf-small",
-            "TVF-S",
-            _tvf,
-            ("gctn", "vf"),
-            PlannerConfig(k=2, depth=1, turns_depth=1, tie_band=0.002),
-            turns=4,
-            **IMAGE_RULES,
-            paper="tvf-small",
-        ),
-        # TVF-L: distinct proposals (NMS, three picks), chosen on validation seeds (docs/results.md); its
-        # first actions from a lower threshold (three distinct root proposals in 96.7 % of decisions;
-        # docs/results.md, "Distinct first actions"); the paper's rule is --proposals kmeans
-        # --pick-branches 1 --turns 1 --root-alpha 0.01 with IMAGE_RULES' paper flags
-        Method(
-            "tvf-large",
-            "TVF-L",
-            _tvf,
-            ("gctn", "vf"),
-            PlannerConfig(3, 3, proposals="nms", pick_branches=3, turns_depth=1, root_alpha=0.001),
-            turns=8,
-            **IMAGE_RULES,
-            paper="tvf-large",
-        ),
+        *_OURS,
         # the same three with the paper's planner rules and nothing read from the height maps (every
-        # Method default is the paper's), so both rows can be compared with the paper's
+        # Method default is the paper's), so the rows can be compared with the paper's
         Method("gctn-paper", "GCTN, paper rules", _gctn, models=("gctn",), paper="gctn"),
         Method("tvf-small-paper", "TVF-S, paper rules", _tvf, ("gctn", "vf"), PAPER_SMALL, paper="tvf-small"),
         Method("tvf-large-paper", "TVF-L, paper rules", _tvf, ("gctn", "vf"), PAPER_LARGE, paper="tvf-large"),
+        # ours with nothing read from the height maps: their turns and their search only
+        *(_without_image_rules(m) for m in _OURS),
     )
 }
 PLANNER_METHODS = tuple(name for name, m in METHODS.items() if m.planner is not None)
