@@ -88,10 +88,11 @@ def load_planner(
     gctn-paper | tvf-small-paper | tvf-large-paper, or without the image rules: gctn-no-image-rules |
     tvf-small-no-image-rules | tvf-large-no-image-rules) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
-    pick_branches, turns_depth, tie_band, root_k, order_branch, gamma, root_alpha; docs/planner.md);
-    ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds mirrors) averages the
-    GCTN over quarter turns of the scene (default: the method's); ``goal_mask`` True masks the GCTN's maps
-    by the height difference to the goal (:mod:`tvf.models.goal_mask`; default: the method's),
+    pick_branches, turns_depth, tie_band, root_k, order_branch, gamma, root_alpha, first_step_band;
+    docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds
+    mirrors) averages the GCTN over quarter turns of the scene (default: the method's); ``goal_mask``
+    True masks the GCTN's maps by the height difference to the goal (:mod:`tvf.models.goal_mask`;
+    default: the method's),
     ``mask_places`` (gap, centred, bottom-up, ordered, layered, cells) narrows its places (default: the
     method's) and ``centred_share`` sets how near a region's middle the centred ones lie (default 0.9);
     ``refine_yaw`` True sets the place's turn to the block yaws read from the two height maps

@@ -55,7 +55,7 @@ def test_a_tvf_decision_is_the_policys_and_keeps_its_plan(scene):
 
 def test_every_planner_option_of_the_cli_reaches_the_search():
     options = dict(k=2, depth=2, proposals="nms", pick_branches=2, turns_depth=1, alpha=0.05, nms_radius=9.0,
-                   tie_band=0.01, root_alpha=0.002)  # fmt: skip
+                   tie_band=0.01, root_alpha=0.002, first_step_band=0.004)  # fmt: skip
     config = tvf.load_planner("tvf-large", **options)._policy.search.config
     assert {name: getattr(config, name) for name in options} == options
     ordered = tvf.load_planner("tvf-large", mask_places="ordered", centred_share=0.8)._policy.search.gctn

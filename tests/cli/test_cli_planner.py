@@ -255,6 +255,11 @@ def test_alpha_and_nms_radius_reach_the_planner_of_every_command(capsys, tmp_pat
         assert code == 2 and "alpha must be in (0, 1]" in err and "--alpha" in err, err
         code, _, err = run(capsys, *command, "--nms-radius", "-1", *weights, "--out", str(tmp_path / "bad"))
         assert code == 2 and "nms_radius must be a positive number" in err, err
+        code, _, err = run(
+            capsys, *command, "--first-step-band", "-1", *weights, "--out", str(tmp_path / "bad")
+        )
+        assert code == 2 and "first_step_band must be None or a score difference >= 0" in err, err
+        assert "--first-step-band" in err and len(err.strip().splitlines()) == 1
 
 
 def test_eval_records_the_mask_places_and_refuses_to_resume_with_another_rule(

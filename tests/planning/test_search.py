@@ -643,6 +643,24 @@ def test_the_tie_band_gives_near_ties_to_the_first_root_action_and_keeps_its_bes
     assert best_node(equal) == 1  # exact ties: the shallowest, as before
 
 
+def test_the_first_step_band_keeps_depth_to_first_actions_the_one_step_foresight_cannot_tell_apart():
+    # roots 0, 1, 2 score 0.950, 0.940, 0.930 themselves; root 2's grandchild 6 is the best node
+    nodes = tree({0: (-1, 0.950), 1: (-1, 0.940), 2: (-1, 0.930), 3: (0, 0.9600), 4: (1, 0.9650),
+                  5: (2, 0.9600), 6: (5, 0.9700)})  # fmt: skip
+    assert best_node(nodes) == best_node(nodes, first_step_band=None) == 6  # the paper's: every root
+    assert best_node(nodes, first_step_band=0.025) == 6  # root 2 is 0.020 under the best root: competes
+    assert best_node(nodes, first_step_band=0.015) == 4  # root 2 dropped; root 1's subtree (0.965) wins
+    assert best_node(nodes, first_step_band=0.005) == 3  # root 0 alone; its best node, not itself
+    assert best_node(nodes, first_step_band=0.0) == 3
+    # with a tie band too: the first competing root action within the band of the competing best
+    assert (
+        best_node(nodes, 0.006, first_step_band=0.015) == 3
+        and best_node(nodes, 0.004, first_step_band=0.015) == 4
+    )
+    with pytest.raises(ValueError, match="first_step_band must be None or a score difference >= 0"):
+        PlannerConfig(first_step_band=float("nan"))
+
+
 def test_the_search_applies_its_tie_band():
     def first(band: float):
         search = TreeSearch(ToyGctn(), ToyVf(), PlannerConfig(k=2, depth=1, tie_band=band))

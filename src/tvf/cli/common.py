@@ -93,6 +93,11 @@ class PlannerFlags:
     tree stays as pruned); default: the method's (tvf-large 0.001; --alpha alone sets every node's, the
     root's too)."""
 
+    first_step_band: float | None = None
+    """TVF: only first actions whose one-step imagined score is within FIRST_STEP_BAND of the best one's
+    are compared by their deeper nodes; the others are not chosen (default: the method's, every first
+    action, the paper's; 0: the one-step choice, depth breaking exact ties only). One misplaced block
+    moves a score by about 0.015."""
     foresight: str | None = None
     """TVF: what scores the search's nodes, vf (the VF's imagined images, the default) | simulator (each
     proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
@@ -107,7 +112,7 @@ class PlannerFlags:
             method, _path(self.gctn), _path(self.vf), k, depth, device, self.proposals, self.pick_branches,
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
-            self.root_alpha, self.centred_share, self.centre_picks, self.foresight,
+            self.root_alpha, self.centred_share, self.centre_picks, self.foresight, self.first_step_band,
         )  # fmt: skip
 
 

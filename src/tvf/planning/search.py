@@ -94,6 +94,11 @@ class PlannerConfig:
     one block finishes it: a bridge waits for its columns), in place of the node's last proposal unless a
     proposal already lies within half a block of it. The greedy GCTN often ranks such a place under one
     a layer too low; the search then weighs both by their imagined outcomes (docs/planner.md)."""
+    first_step_band: float | None = None
+    """Only root actions whose own one-step score is within this of the best one's are compared by their
+    subtrees' best scores; the others are not chosen, whatever their deeper nodes score. None: every root
+    action (the paper's); 0: the one-step search's choice, deeper levels breaking exact ties only.
+    Depth then reorders only first actions the one-step foresight cannot tell apart."""
     root_k: int | None = None
     """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
     A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
@@ -126,6 +131,9 @@ class PlannerConfig:
             raise ValueError(f"root_alpha must be None or in (0, 1], got {self.root_alpha}")
         if not (math.isfinite(self.tie_band) and self.tie_band >= 0):
             raise ValueError(f"tie_band must be a score difference >= 0, got {self.tie_band}")
+        band = self.first_step_band
+        if band is not None and not (math.isfinite(band) and band >= 0):
+            raise ValueError(f"first_step_band must be None or a score difference >= 0, got {band}")
 
     @property
     def widest(self) -> int:
@@ -201,16 +209,28 @@ def root_values(nodes: list[Node]) -> tuple[np.ndarray, np.ndarray]:
     return root, value
 
 
-def best_node(nodes: list[Node], tie_band: float = 0.0) -> int:
+def best_node(nodes: list[Node], tie_band: float = 0.0, first_step_band: float | None = None) -> int:
     """The node whose path is executed (``nodes`` in breadth-first order, so the root actions come first,
-    in proposal order). Band 0: the first maximum (the shallowest, then the earliest). Otherwise the
-    first root action whose subtree's best score is within ``tie_band`` of the best, and its best node."""
+    in proposal order). Only root actions whose own score is within ``first_step_band`` of the best root
+    action's compete (None: all). With ``tie_band`` 0: the first maximum among them (the shallowest,
+    then the earliest); otherwise the first root action whose subtree's best score is within
+    ``tie_band`` of the best, and its best node."""
     scores = np.array([node.score for node in nodes])
+    root, value = root_values(nodes)
+    if first_step_band is not None:
+        competing = near_best_first_steps(nodes, first_step_band)
+        scores = np.where(competing[root], scores, -np.inf)
+        value = np.where(competing, value, -np.inf)
     if tie_band <= 0:
         return int(np.argmax(scores))
-    root, value = root_values(nodes)
     chosen = int(np.flatnonzero(value >= scores.max() - tie_band)[0])
     return int(np.flatnonzero(root == chosen)[np.argmax(scores[root == chosen])])
+
+
+def near_best_first_steps(nodes: list[Node], band: float) -> np.ndarray:
+    """Per node index: a root action (depth 1) whose own score is within ``band`` of the best root's."""
+    first = np.array([node.score if node.parent < 0 else -np.inf for node in nodes])
+    return first >= first.max() - band
 
 
 def height_distance(images: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
@@ -403,7 +423,7 @@ class TreeSearch:
                 for r in range(n):
                     images[r].append(frontier.states[torch.as_tensor(frontier.roots == r)])
         for plan, kept in zip(plans, images, strict=True):
-            plan.best = best_node(plan.nodes, cfg.tie_band)
+            plan.best = best_node(plan.nodes, cfg.tie_band, cfg.first_step_band)
             plan.images = torch.cat(kept) if keep_images else None
         return plans
 

@@ -97,6 +97,6 @@ class SimulatedSearch:
             for snapshot in held.values():
                 env.forget(snapshot)
             env.restore(root)
-        plan.best = best_node(plan.nodes, cfg.tie_band)
+        plan.best = best_node(plan.nodes, cfg.tie_band, cfg.first_step_band)
         plan.images = torch.stack(images) if keep_images and images else None
         return plan, actions

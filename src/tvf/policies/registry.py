@@ -23,7 +23,7 @@ from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, T
 
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
-    "order_branch", "gamma", "root_alpha",
+    "order_branch", "gamma", "root_alpha", "first_step_band",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -88,6 +88,9 @@ class PolicySpec:
     """TVF: what scores the search's nodes, ``vf`` (the VF's imagined images; None: this) or ``simulator``
     (each proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound
     for research; :mod:`tvf.planning.simulated`)."""
+    first_step_band: float | None = None
+    """TVF: only root actions whose one-step score is within this of the best one's compete by their
+    subtrees (None: the method's, every root action for every method, the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
