@@ -173,15 +173,21 @@ def test_the_order_branch_needs_the_goal_mask_and_reaches_the_search():
         make_policy(PolicySpec("gctn", tie_band=0.001, order_branch=True))  # not silently ignored
 
 
+def image_rules(spec: PolicySpec) -> tuple[bool, bool, bool]:
+    """What ``spec`` reads from the height maps: goal mask, refined turns, centred picks."""
+    return goal_mask_of(spec), refine_yaw_of(spec), centre_picks_of(spec)
+
+
+def without_image_rules_flags(ours: str) -> PolicySpec:
+    """``ours`` with every image rule switched off by its flag."""
+    return PolicySpec(ours, goal_mask=False, refine_yaw=False, centre_picks=False)
+
+
 @pytest.mark.parametrize("ours", ["gctn", "tvf-small", "tvf-large"])
 def test_the_paper_rules_methods_are_ours_with_every_paper_flag(ours):
     paper = PolicySpec(f"{ours}-paper")
-    flags = PolicySpec(ours, goal_mask=False, refine_yaw=False, centre_picks=False)
-
-    def rules(spec):
-        return goal_mask_of(spec), refine_yaw_of(spec), centre_picks_of(spec)
-
-    assert rules(paper) == rules(flags) == (False, False, False) != rules(PolicySpec(ours))
+    flags = without_image_rules_flags(ours)
+    assert image_rules(paper) == image_rules(flags) == (False, False, False) != image_rules(PolicySpec(ours))
     assert get_method(paper.method).turns == 1 < get_method(ours).turns
     assert get_method(paper.method).models == get_method(ours).models
     assert paper_method(paper.method) == paper_method(ours) == ours  # the same published number
@@ -195,12 +201,8 @@ def test_the_paper_rules_methods_are_ours_with_every_paper_flag(ours):
 @pytest.mark.parametrize("ours", ["gctn", "tvf-small", "tvf-large"])
 def test_the_no_image_rules_methods_are_ours_reading_nothing_from_the_height_maps(ours):
     bare = PolicySpec(f"{ours}-no-image-rules")
-    flags = PolicySpec(ours, goal_mask=False, refine_yaw=False, centre_picks=False)
-
-    def rules(spec):
-        return goal_mask_of(spec), refine_yaw_of(spec), centre_picks_of(spec)
-
-    assert rules(bare) == rules(flags) == (False, False, False) != rules(PolicySpec(ours))
+    flags = without_image_rules_flags(ours)
+    assert image_rules(bare) == image_rules(flags) == (False, False, False) != image_rules(PolicySpec(ours))
     assert get_method(bare.method).mask_places == get_method(f"{ours}-paper").mask_places  # the paper's
     assert get_method(bare.method).turns == get_method(ours).turns > 1  # our turns kept
     assert paper_method(bare.method) == ours and get_method(bare.method).models == get_method(ours).models
