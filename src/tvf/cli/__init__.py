@@ -12,7 +12,7 @@ import sys
 import tyro
 
 from tvf.cli.data import DataCmd, DemosCmd
-from tvf.cli.evaluation import AblateCmd, EvalCmd, EvalVfCmd
+from tvf.cli.evaluation import AblateCmd, CompareCmd, EvalCmd, EvalVfCmd
 from tvf.cli.experiment import ExperimentCmd
 from tvf.cli.plan import PlanCmd
 from tvf.cli.quickstart import QuickstartCmd
@@ -41,6 +41,7 @@ COMMANDS: dict[str, type] = {
     "eval": EvalCmd,
     "eval-vf": EvalVfCmd,
     "ablate": AblateCmd,
+    "compare": CompareCmd,
     "plan": PlanCmd,
     "viz": VizCmd,
     "experiment": ExperimentCmd,

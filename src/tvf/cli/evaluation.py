@@ -194,3 +194,30 @@ class AblateCmd:
         run_ablation(spec, ks, depths, tasks, self.episodes, self.seed_start, self.workers, self.out,
                      self.step_slack)  # fmt: skip
         print((self.out / "ablation.md").read_text())
+
+
+@dataclass(frozen=True)
+class CompareCmd:
+    """Compare evaluations on the episodes they share (matched by task and seed): each run's successes
+    per task with a Wilson 95% interval, and each later run against the first as episodes it wins and
+    loses, with the exact two-sided sign test (episodes both finish or both lose are left out). Reads the
+    episodes.jsonl of tvf eval folders, tvf ablate cells or an experiment's evaluations.
+    Example: tvf compare eval/tvf-large eval/tvf-large-d1 --labels "depth 3,depth 1"
+    """
+
+    folders: tyro.conf.Positional[tuple[Path, ...]]
+    """Evaluation folders; the first is the baseline the others are paired against."""
+    labels: str | None = None
+    """Comma-separated names, one per folder (default: each folder's method and the flags it set)."""
+    json: Path | None = None
+    """Also write the numbers to this JSON file."""
+
+    def run(self) -> None:
+        from tvf.evaluate.compare import compare, comparison_markdown, read_runs
+        from tvf.io import atomic_write_json
+
+        labels = [s.strip() for s in self.labels.split(",")] if self.labels is not None else None
+        result = compare(read_runs(list(self.folders), labels))
+        if self.json is not None:
+            atomic_write_json(self.json, result)
+        print(comparison_markdown(result), end="")
