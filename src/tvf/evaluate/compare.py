@@ -8,7 +8,8 @@ exact test), the one docs/results.md quotes as "wins W, loses L, p"."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from tvf.errors import TvfError
@@ -118,17 +119,17 @@ def compare(runs: list[Run]) -> dict:
     if len(runs) < 2:
         raise TvfError("give at least two evaluation folders to compare")
     episodes = shared_episodes(runs)
-    tasks = list(dict.fromkeys(task for task, _ in episodes))
+    per_task = Counter(task for task, _ in episodes)  # in the episodes' task order
     table = []
     for run in runs:
-        per_task = {t: sum(run.outcomes[e] for e in episodes if e[0] == t) for t in tasks}
-        total = sum(per_task.values())
-        table.append({"label": run.label, "tasks": per_task, "successes": total,
+        successes = Counter(task for task, seed in episodes if run.outcomes[(task, seed)])
+        total = sum(successes.values())
+        table.append({"label": run.label, "tasks": {t: successes[t] for t in per_task}, "successes": total,
                       "success": total / len(episodes), "ci95": wilson(total, len(episodes))})  # fmt: skip
     pairs = [pair(runs[0], other, episodes) for other in runs[1:]]
     left_out = {run.label: len(run.outcomes) - len(episodes) for run in runs}
-    return {"episodes": len(episodes), "per_task": {t: sum(e[0] == t for e in episodes) for t in tasks},
-            "runs": table, "pairs": [p.__dict__ for p in pairs], "left_out": left_out}  # fmt: skip
+    return {"episodes": len(episodes), "per_task": dict(per_task), "runs": table,
+            "pairs": [asdict(p) for p in pairs], "left_out": left_out}  # fmt: skip
 
 
 def comparison_markdown(result: dict) -> str:
