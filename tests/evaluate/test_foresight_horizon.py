@@ -17,6 +17,7 @@ from tvf.data.format import episode_name
 from tvf.data.samplers import VfSampler
 from tvf.errors import TvfError
 from tvf.evaluate.foresight import (
+    Snapped,
     evaluate_foresight,
     foresight_summary,
     paste_baseline,
@@ -24,9 +25,10 @@ from tvf.evaluate.foresight import (
     transition_metrics,
 )
 from tvf.models.checkpoint import load_trained, save_checkpoint
-from tvf.models.images import HEIGHT_STD, to_rgbh
+from tvf.models.images import HEIGHT_STD, heights_of, to_rgbh
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
+from tvf.planning.levels import resting_levels
 
 # (task, split, steps per episode): a 3- and a 2-step episode of a training task, one unseen task.
 EPISODES = (("stack-tower", "train", (3, 2)), ("stack-stair", "unseen", (3,)))
@@ -204,3 +206,35 @@ def test_cli_horizon_flag(setup, tmp_path, capsys):
     assert not (tmp_path / "bad").exists()
     with pytest.raises(TvfError, match="--horizon must be at least 1"):
         evaluate_foresight(ckpt, data, tmp_path / "api", horizon=0)
+
+
+def test_snapped_heights_change_the_vf_rows_only(setup, tmp_path, capsys):
+    data, ckpt = setup
+    args = ("eval-vf", "--vf", str(ckpt), "--data", str(data), "--episodes", "1", "--horizon", "2")
+    docs = {}
+    for flag in ("--no-snap-heights", "--snap-heights"):
+        code, _, _ = run(capsys, *args, "--out", str(tmp_path / flag), flag)
+        assert code == 0
+        docs[flag] = json.loads((tmp_path / flag / "metrics.json").read_text())["horizons"]
+    for split in ("train", "unseen"):
+        plain, snapped = docs["--no-snap-heights"][split], docs["--snap-heights"][split]
+        assert plain["copy"] == snapped["copy"] and plain["paste"] == snapped["paste"]
+        assert plain["vf"]["1"]["height_mae_mm"] != snapped["vf"]["1"]["height_mae_mm"]
+        assert plain["vf"]["1"]["color_mae"] == pytest.approx(snapped["vf"]["1"]["color_mae"], abs=1e-7)
+
+
+def test_the_snapped_foresight_sets_moved_heights_to_resting_levels(setup):
+    data, ckpt = setup
+    _, episodes = _episodes(data)
+    sampler = VfSampler(episodes["stack-stair"], augment=False, identity_fraction=0.0)
+    b = sampler.batch(np.array([0]), np.array([0]))
+    start = to_rgbh(b["current_color"], b["current_height"])
+    vf = load_trained(ckpt, "vf")
+    plain = vf.predict_rgbh(start, b["pick"], b["place"], b["yaw"])
+    snapped = Snapped(vf).predict_rgbh(start, b["pick"], b["place"], b["yaw"])
+    moved = (heights_of(plain) - heights_of(start)).abs() > 0.001
+    assert moved.any() and (~moved).any()
+    levels = resting_levels().to(torch.float32)
+    gap = (heights_of(snapped)[moved][:, None] - levels).abs().min(dim=1).values
+    assert gap.max() < 1e-6
+    assert torch.equal(heights_of(snapped)[~moved], heights_of(plain)[~moved])

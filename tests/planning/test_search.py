@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from tvf.models.gctn import GCTN
+from tvf.models.images import HEIGHT_MEAN, HEIGHT_STD, heights_of, to_rgbh
 from tvf.models.presets import get_preset
 from tvf.models.vf import VisualForesight
 from tvf.planning.search import Node, PlannerConfig, TreeSearch, best_node, height_distance
@@ -755,3 +756,28 @@ def test_centred_picks_reach_the_search_and_two_picks_on_one_block_become_one():
     assert [tuple(n.pick.tolist()) for n in plain.nodes] == [(24, 24), (36, 36), (94, 104)]
     centred = TreeSearch(CentredPickGCTN(CornerPicksGctn(logits)), StillVf(), config).search(current, goal)
     assert [tuple(n.pick.tolist()) for n in centred.nodes] == [(30, 30), (90, 100)]
+
+
+class HalfBlockVf:
+    """Imagines every place as a block drawn 3 cm tall (a blurred 4 cm block)."""
+
+    def predict_rgbh(self, states, picks, places, yaws):
+        out = states.clone()
+        for b, (r, c) in enumerate(places.tolist()):
+            out[b, 3, r, c] = (0.03 - HEIGHT_MEAN) / HEIGHT_STD
+        return out
+
+
+@pytest.mark.parametrize("snap", [False, True])
+def test_snap_heights_scores_and_expands_the_snapped_image(snap: bool):
+    table = to_rgbh(torch.zeros(1, SIZE, SIZE, 3), torch.zeros(1, SIZE, SIZE))
+    table[:, 0, 0, 0] = 0  # state 0 of the toy world: places (1, 1) and (6, 6)
+    goal = table.clone()
+    goal[:, 3, 1, 1] = (0.04 - HEIGHT_MEAN) / HEIGHT_STD
+    search = TreeSearch(ToyGctn(), HalfBlockVf(), PlannerConfig(k=2, depth=1, snap_heights=snap))
+    plan = search.search(table, goal, keep_images=True)
+    assert plan.first.place.tolist() == [1, 1]
+    drawn = heights_of(plan.images[plan.best][None])[0, 1, 1].item()
+    assert drawn == pytest.approx(0.04 if snap else 0.03, abs=1e-6)
+    one_centimetre = 0.01 / HEIGHT_STD / (SIZE * SIZE * 4)  # D of a 1 cm error at one pixel
+    assert plan.first.distance == pytest.approx(0.0 if snap else one_centimetre, abs=1e-6)

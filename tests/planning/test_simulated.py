@@ -102,7 +102,9 @@ def test_the_simulated_foresight_needs_its_episodes_simulator_and_a_search():
     assert not needs_env(PolicySpec("tvf-large"))
     with pytest.raises(TvfError, match="executes the search's actions in the simulator"):
         make_policy(PolicySpec("tvf-large", foresight="simulator"))
-    with pytest.raises(TvfError, match="unknown --foresight 'dream'; choose one of vf, simulator"):
+    with pytest.raises(
+        TvfError, match="unknown --foresight 'dream'; choose one of vf, simulator, simulator-"
+    ):
         make_policy(PolicySpec("tvf-large", foresight="dream"))
     with pytest.raises(TvfError, match="gctn does not search; --foresight needs one of"):
         make_policy(PolicySpec("gctn", foresight="simulator"))
@@ -131,3 +133,39 @@ def test_propose_gives_the_proposals_of_a_searchs_root():
         np.testing.assert_array_equal(props.places, [n.place for n in roots])
         np.testing.assert_array_equal(props.picks, [n.pick for n in roots])
         np.testing.assert_array_equal(bins, [n.rotation for n in roots])
+
+
+def test_simulator_first_executes_the_first_actions_and_imagines_below_them():
+    env = sim_env(get_task("stack-stair"))
+    obs, info = env.reset(seed=3)
+    before = _scene(env)
+    spec = PolicySpec("tvf-small-paper", k=2, depth=2, foresight="simulator-first")
+    policy = make_policy(spec, env)
+    plan, actions = policy.search.search(obs, info["goal"], keep_images=True)
+    _assert_same_scene(_scene(env), before)
+    assert [n.depth for n in plan.nodes] == [1, 1, 2, 2, 2, 2]
+    assert [n.parent for n in plan.nodes[2:]] == [0, 0, 1, 1]
+    assert len(actions) == 2 and plan.counts["sim_steps"] == 2
+    assert plan.counts["vf_calls"] == 1 and plan.counts["vf_states"] == 4
+    assert plan.images.shape == (6, 4, 160, 160)
+    # below each executed action: the VF search's own children of the real outcome, one level deeper
+    vf_search = make_policy(PolicySpec("tvf-small-paper", k=2, depth=1)).search
+    goal = to_rgbh(info["goal"]["color"], info["goal"]["height"])
+    for root in plan.nodes[:2]:
+        snapshot = env.snapshot()
+        seen, *_ = env.step(actions[root.index])
+        env.restore(snapshot)
+        alone = vf_search.search(to_rgbh(seen["color"], seen["height"]), goal)
+        below = [n for n in plan.nodes if n.parent == root.index]
+        np.testing.assert_array_equal([n.place for n in below], [n.place for n in alone.nodes])
+        assert [n.distance for n in below] == pytest.approx([n.distance for n in alone.nodes], abs=1e-6)
+        assert [n.score for n in below] == pytest.approx([0.99 * n.score for n in alone.nodes], abs=1e-6)
+    assert needs_env(spec)
+
+
+def test_a_search_that_imagines_below_needs_a_vf():
+    env = sim_env(get_task("put-t"))
+    proposer = make_policy(PolicySpec("tvf-small-paper", depth=2)).search
+    proposer.vf = None
+    with pytest.raises(TvfError, match="imagines its deeper levels needs a VF"):
+        SimulatedSearch(proposer, env, executed=1)

@@ -98,10 +98,17 @@ class PlannerFlags:
     are compared by their deeper nodes; the others are not chosen (default: the method's, every first
     action, the paper's; 0: the one-step choice, depth breaking exact ties only). One misplaced block
     moves a score by about 0.015."""
+    snap_heights: bool | None = None
+    """TVF: True sets every height the VF imagines moved to the nearest level a surface rests at (the
+    table, a base cell's top, the top of a stack of blocks on either) before the node is scored and
+    expanded, so blur does not pile up over the levels (docs/planner.md); False: the VF's image as it
+    is (the paper's); default: the method's."""
     foresight: str | None = None
     """TVF: what scores the search's nodes, vf (the VF's imagined images, the default) | simulator (each
     proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
-    research, about 0.4 s a node on a laptop core; `tvf eval` and `tvf ablate` only; docs/planner.md)."""
+    research, about 0.4 s a node on a laptop core; `tvf eval` and `tvf ablate` only; docs/planner.md) |
+    simulator-first (the first actions executed, the levels below imagined by the VF from their real
+    outcomes: which of the VF's imagined steps caps depth)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip
@@ -113,6 +120,7 @@ class PlannerFlags:
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
             self.root_alpha, self.centred_share, self.centre_picks, self.foresight, self.first_step_band,
+            self.snap_heights,
         )  # fmt: skip
 
 

@@ -129,6 +129,9 @@ class EvalVfCmd:
     """A YAML or JSON file of the extra tasks a dataset made with --task-file holds."""
     device: str = "auto"
     """auto | cpu | cuda: where the models run (auto: CUDA when present)."""
+    snap_heights: bool = False
+    """Score the VF as the search with --snap-heights True uses it: every height it moves set to the
+    nearest level a surface rests at, at every rollout step (the baselines are unchanged)."""
 
     def run(self) -> None:
         from tvf.device import pick_device
@@ -141,7 +144,8 @@ class EvalVfCmd:
         out = check_output_dir(self.out)
         summary = evaluate_foresight(self.vf, self.data, out, self.episodes, horizon=self.horizon,
                                      tasks=load_tasks(self.task_file), device=device,
-                                     latent_checkpoint=self.latent)  # fmt: skip
+                                     latent_checkpoint=self.latent,
+                                     snap_heights=self.snap_heights)  # fmt: skip
         print(metrics_markdown(summary))
 
 

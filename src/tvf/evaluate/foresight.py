@@ -36,6 +36,7 @@ from tvf.io import atomic_write_bytes
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.vf import encode_action, height_changed, paste_place_window
+from tvf.planning.levels import snap_heights
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
@@ -87,6 +88,17 @@ class OnDevice:
     def predict_rgbh(self, rgbh: torch.Tensor, pick, place, yaw) -> torch.Tensor:
         moved = [torch.as_tensor(x).to(self.device) for x in (rgbh, pick, place, yaw)]
         return self.model.predict_rgbh(*moved).cpu()
+
+
+class Snapped:
+    """A foresight whose every moved height is set to the nearest resting level, as the search snaps it
+    with ``snap_heights`` (:func:`tvf.planning.levels.snap_heights`)."""
+
+    def __init__(self, model: Foresight) -> None:
+        self.model, self.window = model, model.window
+
+    def predict_rgbh(self, rgbh: torch.Tensor, pick, place, yaw) -> torch.Tensor:
+        return snap_heights(self.model.predict_rgbh(rgbh, pick, place, yaw), rgbh)
 
 
 PerWindow = dict[str, dict[int, dict[str, np.ndarray]]]
@@ -189,16 +201,20 @@ def check_horizon(horizon: int) -> None:
 
 def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: Path, max_episodes: int = 20,
                        figure_per_task: int = 1, horizon: int = 1, tasks: TaskTable | None = None,
-                       device: str = "cpu", latent_checkpoint: str | Path | None = None) -> dict:  # fmt: skip
+                       device: str = "cpu", latent_checkpoint: str | Path | None = None,
+                       snap_heights: bool = False) -> dict:  # fmt: skip
     """Evaluate on the test split's transitions; writes metrics.json, metrics.md and figures.
 
     ``latent_checkpoint`` (a latent-dynamics run, .pt or .safetensors) adds the method ``latent``. The
     one-step metrics are at the top level ({split: {method: metrics}}). With ``horizon`` > 1 a
     ``horizons`` section {split: {method: {"k": metrics}}} for k = 1..horizon (see
     :func:`rollout_metrics`) is added, with tables in metrics.md and the plot horizons.png.
+    ``snap_heights`` scores the VF through :class:`Snapped`.
     """
     check_horizon(horizon)
-    model = OnDevice(load_trained(vf_checkpoint, "vf", device), torch.device(device))
+    model: Foresight = OnDevice(load_trained(vf_checkpoint, "vf", device), torch.device(device))
+    if snap_heights:
+        model = Snapped(model)
     others = {}
     if latent_checkpoint is not None:
         others["latent"] = OnDevice(load_trained(latent_checkpoint, "latent", device), torch.device(device))

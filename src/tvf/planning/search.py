@@ -30,6 +30,7 @@ from tvf.models.gctn import argmax_pixels
 from tvf.models.goal_mask import mask_of, place_allowed, restricted
 from tvf.models.images import RGBH_CHANNELS
 from tvf.models.symmetry import SymmetrizedGCTN
+from tvf.planning.levels import snap_heights
 from tvf.planning.proposals import (
     BLOCK_PIXELS,
     RULES,
@@ -99,6 +100,9 @@ class PlannerConfig:
     subtrees' best scores; the others are not chosen, whatever their deeper nodes score. None: every root
     action (the paper's); 0: the one-step search's choice, deeper levels breaking exact ties only.
     Depth then reorders only first actions the one-step foresight cannot tell apart."""
+    snap_heights: bool = False
+    """Set every height the VF moved to the nearest level a surface rests at (:mod:`tvf.planning.levels`)
+    before the node is scored and expanded; False: the VF's image as it is (the paper's)."""
     root_k: int | None = None
     """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
     A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
@@ -388,6 +392,8 @@ class TreeSearch:
         children, distances = [], []
         for p in self._parts(roots, mix):
             images = self.vf.predict_rgbh(states[p], picks[p], places[p], yaws[p])
+            if self.config.snap_heights:
+                images = snap_heights(images, states[p])
             children.append(images)
             distances.append(height_distance(images, goals[self._root_rows(roots, p)]))
         return torch.cat(children), torch.cat(distances)
@@ -426,6 +432,22 @@ class TreeSearch:
             plan.best = best_node(plan.nodes, cfg.tie_band, cfg.first_step_band)
             plan.images = torch.cat(kept) if keep_images else None
         return plans
+
+    @torch.no_grad()
+    def grow(self, plan: Plan, states: torch.Tensor, parents: list[int], goal: torch.Tensor, level: int
+             ) -> list[torch.Tensor]:  # fmt: skip
+        """Add to ``plan`` (one root's, towards ``goal`` (1, 4, H, W)) the imagined subtrees of ``states``
+        (normalised RGB-H (N, 4, H, W): the scenes of its nodes ``parents``, at ``level`` - 1), from
+        ``level`` down to the configured depth; returns each new level's images, in node order. A search
+        whose upper levels come from elsewhere (the simulator: :mod:`tvf.planning.simulated`) imagines
+        the rest with this one's models."""
+        features = self._goal_features(goal, mix=False)
+        frontier = _Level(states, np.zeros(len(parents), dtype=int), list(parents))
+        imagined = []
+        for depth in range(level, self.config.depth + 1):
+            frontier = self._expand([plan], frontier, goal, features, depth, mix=False)
+            imagined.append(frontier.states)
+        return imagined
 
     def _expand(self, plans: list[Plan], frontier: _Level, goals: torch.Tensor, goal_features: torch.Tensor,
                 level: int, mix: bool) -> _Level:  # fmt: skip

@@ -8,6 +8,11 @@ environment it will act in and puts it back exactly (:meth:`tvf.sim.env.TvfEnv.s
 upper bound for research (``tvf eval --foresight simulator``), not a method for a real robot. The tree
 is expanded breadth-first, one node at a time (a simulator step is ~0.4 s on a laptop core, a TVF-L
 decision 39 steps); a node whose action finishes the structure is not expanded further.
+
+``simulator-first`` executes only the root's proposals and imagines the levels below with the VF from
+those real outcomes (:meth:`TreeSearch.grow`): beside the VF's own search and the simulator's, it tells
+whether depth fails on the VF's first imagined step (its errors compounding below) or on its later
+ones (docs/results.md, "Where the VF caps depth").
 """
 
 from __future__ import annotations
@@ -20,23 +25,31 @@ from tvf.models.images import to_rgbh
 from tvf.planning.actions import bin_action
 from tvf.planning.search import Node, Plan, TreeSearch, best_node, height_distance
 
-FORESIGHTS = ("vf", "simulator")
-"""What the search's nodes are scored from: the VF's imagined images (TVF) or the simulator's outcomes."""
+FORESIGHTS = ("vf", "simulator", "simulator-first")
+"""What the search's nodes are scored from: the VF's imagined images (TVF), the simulator's outcomes, or
+the simulator's outcomes of the first actions and the VF's images below them."""
+SIMULATED = {"simulator": None, "simulator-first": 1}
+"""The foresights that execute proposals in the simulator, and how many levels they execute (None: all)."""
 
 
 class SimulatedSearch:
     """The TVF search of ``proposer``'s GCTN and planner settings, with ``env`` (a simulator with
-    ``snapshot``/``restore``/``forget``) in place of the VF."""
+    ``snapshot``/``restore``/``forget``) in place of the VF for the first ``executed`` levels (None:
+    all); deeper levels are imagined by ``proposer``'s VF from the simulator's outcomes."""
 
-    def __init__(self, proposer: TreeSearch, env, refine_yaw: bool = False) -> None:
+    def __init__(self, proposer: TreeSearch, env, refine_yaw: bool = False, executed: int | None = None
+                 ) -> None:  # fmt: skip
         missing = [name for name in ("snapshot", "restore", "forget") if not hasattr(env, name)]
         if missing:
             raise TvfError(
                 f"simulated foresight needs an environment that can save and restore its scene "
                 f"(tvf.sim.env.TvfEnv); {type(env).__name__} has no {', '.join(missing)}"
             )
+        if executed is not None and executed < proposer.config.depth and proposer.vf is None:
+            raise TvfError("a search that imagines its deeper levels needs a VF: TreeSearch(gctn, vf, ...)")
         self.proposer, self.env, self.refine_yaw = proposer, env, refine_yaw
         self.config = proposer.config
+        self.executed = proposer.config.depth if executed is None else min(executed, proposer.config.depth)
 
     def _children(self, obs: dict, current: torch.Tensor, goal: dict, target: torch.Tensor, level: int
                   ) -> list[tuple[Node, np.ndarray]]:  # fmt: skip
@@ -63,6 +76,7 @@ class SimulatedSearch:
         images: list[torch.Tensor] = []
         root = env.snapshot()
         held: dict[int, object] = {}  # the frontier's snapshots, freed as soon as their children exist
+        leaves: list[tuple[torch.Tensor, int]] = []  # the deepest executed nodes the VF imagines below
 
         def hold():
             snapshot = env.snapshot()
@@ -71,7 +85,7 @@ class SimulatedSearch:
 
         frontier = [(root, obs, to_rgbh(obs["color"], obs["height"]), -1)]
         try:
-            for level in range(1, cfg.depth + 1):
+            for level in range(1, self.executed + 1):
                 grown = []
                 for snapshot, scene, scene_rgbh, parent in frontier:
                     plan.counts["gctn_calls"] += 1
@@ -88,8 +102,10 @@ class SimulatedSearch:
                         actions.append(action)
                         if keep_images:
                             images.append(rgbh[0])
-                        if level < cfg.depth and not finished:
+                        if level < self.executed and not finished:
                             grown.append((hold(), seen, rgbh, node.index))
+                        elif level < cfg.depth and not finished:
+                            leaves.append((rgbh, node.index))
                     if snapshot is not root:
                         env.forget(held.pop(id(snapshot)))
                 frontier = grown
@@ -97,6 +113,10 @@ class SimulatedSearch:
             for snapshot in held.values():
                 env.forget(snapshot)
             env.restore(root)
+        if leaves:
+            states = torch.cat([rgbh for rgbh, _ in leaves])
+            imagined = self.proposer.grow(plan, states, [i for _, i in leaves], goal_rgbh, self.executed + 1)
+            images += [image for level in imagined for image in level] if keep_images else []
         plan.best = best_node(plan.nodes, cfg.tie_band, cfg.first_step_band)
         plan.images = torch.stack(images) if keep_images and images else None
         return plan, actions

@@ -134,11 +134,13 @@ class TvfPolicy:
 class SimulatedTvfPolicy:
     """TVF with the simulator as its foresight (:mod:`tvf.planning.simulated`): every proposal of the
     search is executed in ``env``, the environment the policy acts in, and undone. An upper bound for
-    research: a decision costs one simulator step per node (39 for TVF-L)."""
+    research: a decision costs one simulator step per node (39 for TVF-L). With ``executed`` levels
+    only the first ones are executed and the rest imagined by ``proposer``'s VF."""
 
-    def __init__(self, env, proposer: TreeSearch, name: str = "tvf", refine_yaw: bool = False) -> None:
+    def __init__(self, env, proposer: TreeSearch, name: str = "tvf", refine_yaw: bool = False,
+                 executed: int | None = None) -> None:  # fmt: skip
         self.name = name
-        self.search = SimulatedSearch(proposer, env, refine_yaw)
+        self.search = SimulatedSearch(proposer, env, refine_yaw, executed)
         self.last_plan: Plan | None = None
         self.keep_images = False
 

@@ -17,13 +17,13 @@ from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goa
 from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
 from tvf.planning.search import PlannerConfig, TreeSearch, widest_node
-from tvf.planning.simulated import FORESIGHTS
+from tvf.planning.simulated import FORESIGHTS, SIMULATED
 from tvf.policies.base import Policy
 from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, TvfPolicy
 
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
-    "order_branch", "gamma", "root_alpha", "first_step_band",
+    "order_branch", "gamma", "root_alpha", "first_step_band", "snap_heights",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -85,12 +85,16 @@ class PolicySpec:
     """Move each pick the GCTN chooses to the centre of the block face under it, read from the height map
     (:mod:`tvf.models.pick_centre`; None: the method's, ``Method.centre_picks``; False: the paper's)."""
     foresight: str | None = None
-    """TVF: what scores the search's nodes, ``vf`` (the VF's imagined images; None: this) or ``simulator``
+    """TVF: what scores the search's nodes, ``vf`` (the VF's imagined images; None: this), ``simulator``
     (each proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound
-    for research; :mod:`tvf.planning.simulated`)."""
+    for research; :mod:`tvf.planning.simulated`) or ``simulator-first`` (the first actions executed, the
+    levels below imagined by the VF)."""
     first_step_band: float | None = None
     """TVF: only root actions whose one-step score is within this of the best one's compete by their
     subtrees (None: the method's, every root action for every method, the paper's)."""
+    snap_heights: bool | None = None
+    """TVF: set every height the VF moved to the nearest level a surface rests at before a node is scored
+    and expanded (:mod:`tvf.planning.levels`; None: the method's; False: the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -178,13 +182,14 @@ def centre_picks_of(spec: PolicySpec) -> bool:
 
 
 def foresight_of(spec: PolicySpec) -> str:
-    """What scores ``spec``'s search: ``vf`` unless the spec asks for the ``simulator``."""
+    """What scores ``spec``'s search: ``vf`` unless the spec asks for the ``simulator`` (or
+    ``simulator-first``)."""
     return spec.foresight or "vf"
 
 
 def needs_env(spec: PolicySpec) -> bool:
     """Whether ``spec``'s policy reads the simulator it acts in (the oracle, a simulated foresight)."""
-    return get_method(spec.method).needs_env or foresight_of(spec) == "simulator"
+    return get_method(spec.method).needs_env or foresight_of(spec) in SIMULATED
 
 
 def resolved_settings(spec: PolicySpec) -> dict:
@@ -211,20 +216,23 @@ def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
 
 
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
-    if foresight_of(spec) == "simulator":
+    if foresight_of(spec) in SIMULATED:
         return _simulated_tvf(spec, env, device)
     vf = load_trained(spec.vf, "vf")
     return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
 def _simulated_tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
+    foresight = foresight_of(spec)
     if env is None:
         raise TvfError(
-            "--foresight simulator executes the search's actions in the simulator of the episode, so only "
-            "tvf eval and tvf ablate run it (in Python: make_policy(spec, env))"
+            f"--foresight {foresight} executes the search's actions in the simulator of the episode, so "
+            "only tvf eval and tvf ablate run it (in Python: make_policy(spec, env))"
         )
-    proposer = TreeSearch(_load_gctn(spec).eval().to(device), None, planner_of(spec))
-    return SimulatedTvfPolicy(env, proposer, spec.method, refine_yaw_of(spec))
+    executed = SIMULATED[foresight]
+    vf = load_trained(spec.vf, "vf").eval().to(device) if executed is not None else None
+    proposer = TreeSearch(_load_gctn(spec).eval().to(device), vf, planner_of(spec))
+    return SimulatedTvfPolicy(env, proposer, spec.method, refine_yaw_of(spec), executed)
 
 
 IMAGE_RULES = {"goal_mask": True, "refine_yaw": True, "mask_places": "cells", "centre_picks": True}
