@@ -19,6 +19,8 @@ HEIGHT_MEAN = 0.00509261
 HEIGHT_STD = 0.00903967
 MAX_HEIGHT = 0.28  # workspace z range in metres
 RGBH_CHANNELS = 4
+HEIGHT_CHANNEL = RGBH_CHANNELS - 1
+"""The index of height in an RGB-H tensor's channels."""
 
 ArrayLike = torch.Tensor | np.ndarray
 
@@ -52,7 +54,7 @@ def from_rgbh(rgbh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 def heights_of(rgbh: torch.Tensor) -> torch.Tensor:
     """Metres (B, H, W) of normalised RGB-H images (B, 4, H, W)."""
-    return rgbh[:, 3] * HEIGHT_STD + HEIGHT_MEAN
+    return rgbh[:, HEIGHT_CHANNEL] * HEIGHT_STD + HEIGHT_MEAN
 
 
 def _normalised_bounds(device: torch.device | None = None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from tvf.models.images import HEIGHT_MEAN, HEIGHT_STD, MAX_HEIGHT, RGBH_CHANNELS
+from tvf.models.images import HEIGHT_CHANNEL, HEIGHT_MEAN, HEIGHT_STD, MAX_HEIGHT, heights_of
 from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
 
 SNAP_TOLERANCE = 0.02
@@ -25,14 +25,16 @@ MOVED = 0.001
 """Metres: pixels whose imagined height differs from the parent's by more are snapped; the others keep
 the VF's height (within this of the parent's, so an untouched real surface is not moved to a level)."""
 
-HEIGHT = RGBH_CHANNELS - 1
-
 
 def resting_levels(max_height: float = MAX_HEIGHT) -> torch.Tensor:
     """The heights (metres, ascending) a surface at rest can have, up to ``max_height``."""
     stacks = int(max_height // BLOCK_SIZE)
     tops = [k * BLOCK_SIZE + base for k in range(stacks + 1) for base in (0.0, CELL_THICKNESS)]
     return torch.tensor(sorted(h for h in tops if h <= max_height), dtype=torch.float64)
+
+
+RESTING_LEVELS = resting_levels()
+"""The levels of the whole workspace (:data:`MAX_HEIGHT`), built once for :func:`snap_heights`."""
 
 
 def nearest_level(heights: torch.Tensor, levels: torch.Tensor) -> torch.Tensor:
@@ -51,10 +53,9 @@ def snap_heights(
     within ``tolerance`` of it. A new tensor; colour is unchanged."""
     if images.shape != parents.shape:
         raise ValueError(f"images {tuple(images.shape)} and parents {tuple(parents.shape)} differ in shape")
-    heights = images[:, HEIGHT] * HEIGHT_STD + HEIGHT_MEAN
-    before = parents[:, HEIGHT] * HEIGHT_STD + HEIGHT_MEAN
-    level = nearest_level(heights, resting_levels())
-    snap = ((heights - before).abs() > moved) & ((heights - level).abs() <= tolerance)
+    heights = heights_of(images)
+    level = nearest_level(heights, RESTING_LEVELS)
+    snap = ((heights - heights_of(parents)).abs() > moved) & ((heights - level).abs() <= tolerance)
     out = images.clone()
-    out[:, HEIGHT] = torch.where(snap, (level - HEIGHT_MEAN) / HEIGHT_STD, images[:, HEIGHT])
+    out[:, HEIGHT_CHANNEL] = torch.where(snap, (level - HEIGHT_MEAN) / HEIGHT_STD, images[:, HEIGHT_CHANNEL])
     return out

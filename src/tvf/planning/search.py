@@ -28,7 +28,7 @@ import torch
 from tvf.device import mixes_environments
 from tvf.models.gctn import argmax_pixels
 from tvf.models.goal_mask import mask_of, place_allowed, restricted
-from tvf.models.images import RGBH_CHANNELS
+from tvf.models.images import HEIGHT_CHANNEL, RGBH_CHANNELS
 from tvf.models.symmetry import SymmetrizedGCTN
 from tvf.planning.levels import snap_heights
 from tvf.planning.proposals import (
@@ -39,8 +39,6 @@ from tvf.planning.proposals import (
     pick_peaks,
     with_extra_place,
 )
-
-HEIGHT_CHANNEL = RGBH_CHANNELS - 1
 
 
 def widest_node(k: int, root_k: int | None) -> int:

@@ -45,11 +45,12 @@ class SimulatedSearch:
                 f"simulated foresight needs an environment that can save and restore its scene "
                 f"(tvf.sim.env.TvfEnv); {type(env).__name__} has no {', '.join(missing)}"
             )
-        if executed is not None and executed < proposer.config.depth and proposer.vf is None:
+        depth = proposer.config.depth
+        self.executed = depth if executed is None else min(executed, depth)
+        if self.executed < depth and proposer.vf is None:
             raise TvfError("a search that imagines its deeper levels needs a VF: TreeSearch(gctn, vf, ...)")
         self.proposer, self.env, self.refine_yaw = proposer, env, refine_yaw
         self.config = proposer.config
-        self.executed = proposer.config.depth if executed is None else min(executed, proposer.config.depth)
 
     def _children(self, obs: dict, current: torch.Tensor, goal: dict, target: torch.Tensor, level: int
                   ) -> list[tuple[Node, np.ndarray]]:  # fmt: skip
