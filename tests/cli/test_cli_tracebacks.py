@@ -135,3 +135,14 @@ def test_demos_near_misses_need_the_train_split_and_a_count(capsys, tmp_path, sp
     err = one_line_error(capsys, "demos", "--split", split, "--near-misses", near, "--out", out)
     assert "--near-misses" in err and "--split train" in err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize(
+    ("flags", "says"),
+    [(["--moves", "gctn"], "only a searching method"), (["--moves", "nope"], "nope"),
+     (["--moves", "tvf-large", "--near-misses", "1"], "drop --near-misses")],
+)  # fmt: skip
+def test_demos_moves_need_a_searching_method_alone(capsys, tmp_path, flags, says):
+    err = one_line_error(capsys, "demos", *flags, "--out", str(tmp_path / "d"))
+    assert says in err
+    assert not (tmp_path / "d").exists()

@@ -17,16 +17,6 @@ from tvf.train.jobs import gctn_job
 from tvf.train.trainer import TrainError, train
 
 
-@pytest.fixture
-def own_data(tmp_path):
-    root = tmp_path / "demos"
-    for split, seeds in (("train", (0, 2)), ("test", (1,))):
-        for task in TASKS:
-            for seed in seeds:
-                write_episode(root / split / task / episode_name(seed), synthetic_episode(task, seed, split))
-    return root
-
-
 def _rewrite(root, split: str, task: str, seed: int) -> None:
     """The same task, seed and step count with other content, as a changed simulator's re-generation gives."""
     path = root / split / task / episode_name(seed)

@@ -103,6 +103,12 @@ class PlannerFlags:
     table, a base cell's top, the top of a stack of blocks on either) before the node is scored and
     expanded, so blur does not pile up over the levels (docs/planner.md); False: the VF's image as it
     is (the paper's); default: the method's."""
+    support_check: bool | None = None
+    """TVF: True ranks a node whose path places a block that would not rest where it is put (its centre
+    not inside the support the parent's height map gives it, read under the block's footprint) under
+    every node that rests: the VF draws such a block where it is put, the simulator drops it
+    (docs/planner.md); False: every imagined place counts as landed (the paper's); default: the
+    method's."""
     foresight: str | None = None
     """TVF: what scores the search's nodes, vf (the VF's imagined images, the default) | simulator (each
     proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
@@ -120,7 +126,7 @@ class PlannerFlags:
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
             self.root_alpha, self.centred_share, self.centre_picks, self.foresight, self.first_step_band,
-            self.snap_heights,
+            self.snap_heights, self.support_check,
         )  # fmt: skip
 
 

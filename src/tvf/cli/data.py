@@ -52,6 +52,12 @@ class DemosCmd:
     random step (the GCTN skips it), then up to two expert steps per near miss to repair it. Data for
     a foresight that must tell which of the GCTN's near-duplicate places land, slide or topple
     (docs/data.md); use its own --out. 0: the reference's episodes."""
+    moves: str | None = None
+    """Record a searching method's own moves instead of the expert's (foresight data, not
+    demonstrations): every step executes one of the method's K root proposals, drawn uniformly from the
+    episode's seed, for 2 steps per block or until the structure is finished; kept whether or not it
+    is. E.g. --moves tvf-large-no-image-rules; train the VF on them with `tvf train vf --extra-data`
+    (docs/data.md, "The planner's own moves"). Use its own --out; seeds of the demonstration range."""
 
     def run(self) -> None:
         from tvf.data.format import SPLITS
@@ -66,11 +72,17 @@ class DemosCmd:
             raise TvfError(f"--split must be one of {', '.join(SPLITS)}, got {self.split!r}")
         at_least_one(episodes=self.episodes, workers=self.workers, max_tries=self.max_tries)
         tasks = tuple(t.name for t in table.resolve(self.tasks))
+        mover = None
+        if self.moves is not None:
+            from tvf.policies.explore import check_moves_method, proposal_mover
+
+            check_moves_method(self.moves)
+            mover = proposal_mover
         plan = GenerationPlan(tasks, self.split, self.episodes, self.out, self.first_seed, self.max_tries,
-                              self.sensor, self.near_misses)  # fmt: skip
+                              self.sensor, self.near_misses, self.moves)  # fmt: skip
         check_output_dir(self.out / self.split)
         report = generate(plan, self.workers, progress=True, tasks=table, backend=self.backend,
-                          address=self.address)  # fmt: skip
+                          address=self.address, mover=mover)  # fmt: skip
         print(
             f"{plan.folder}: {report.generated} episodes written, {report.skipped} already there, "
             f"{len(report.failures)} failed seeds; {report.seconds:.0f} s"

@@ -35,6 +35,8 @@ from tvf.tasks import all_tasks
 
 MANIFEST = "manifest.json"
 FAILURES = "failures.jsonl"
+MOVES_FILE = "moves.json"
+"""Names the method whose own moves a split folder made with ``tvf demos --moves`` holds."""
 EAGER_IMAGE_BYTES = 2 << 30
 """Up to this many bytes of images (2 GiB), :meth:`DemoDataset.load_all` reads them into memory;
 above it they stay on disk (:class:`~tvf.data.format.LazyFrames`)."""
@@ -247,6 +249,18 @@ def verify(root: Path, split: str | None = None) -> Verification:
         unverified += info.checksum is None
         infos.append(info)
     return Verification(_index(root, infos, split), failures, unverified)
+
+
+def moves_of(folder: Path) -> str | None:
+    """The method whose own moves a split folder holds (``moves.json``), None for demonstrations."""
+    path = Path(folder) / MOVES_FILE
+    if not path.exists():
+        return None
+    try:
+        return str(json.loads(path.read_text())["moves"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path}: unreadable ({exc!r}); it names the method whose moves the folder holds"
+                        ) from None  # fmt: skip
 
 
 def split_dirs(path: str | Path) -> list[Path]:

@@ -28,12 +28,12 @@ from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from tqdm import tqdm
 
-from tvf.data.dataset import FAILURES, episode_files, scan, write_manifest
+from tvf.data.dataset import FAILURES, MOVES_FILE, episode_files, moves_of, scan, write_manifest
 from tvf.data.format import SPLITS, DataError, Episode, episode_name, h5_bytes, read_info, write_h5
 from tvf.errors import DiskFullError, TvfError
 from tvf.io import (
@@ -59,6 +59,19 @@ SENSOR_FILE = "sensor.json"
 """Names the sensor of a split folder recorded through one other than ``ideal`` (tvf.sim.sensors)."""
 NEAR_MISS_FILE = "near-misses.json"
 """Names the near misses per episode of a split folder made with ``--near-misses`` (:func:`step_kinds`)."""
+MOVES_PER_TARGET = 2
+"""Steps of a ``--moves`` episode per target block: one to place it, one to repair a wrong move."""
+
+
+class Mover(Protocol):
+    """What executes a ``--moves`` episode's steps (:class:`tvf.policies.explore.ProposalExplorer`)."""
+
+    def act(self, obs: dict, goal: dict) -> np.ndarray | None: ...
+
+
+MoverFactory = Callable[[str, int], Mover]
+"""Builds the mover of (method, episode seed), in the worker process: the layer above supplies it
+(:func:`tvf.policies.explore.proposal_mover`), so this module reads no model itself."""
 
 
 # ------------------------------------------------------------------------------------ one episode
@@ -97,20 +110,29 @@ def step_kinds(task, split: str, seed: int, near_misses: int = 0) -> list[str]:
     return out + ["oracle"] * (2 * near_misses)
 
 
+def moves_budget(task) -> int:
+    """The steps of a ``--moves`` episode: :data:`MOVES_PER_TARGET` per target block (it ends early when
+    the structure is finished)."""
+    return MOVES_PER_TARGET * task.n_blocks
+
+
 def near_miss_rng(seed: int) -> np.random.Generator:
     """The stream that moves the near misses' places (the sixth of ``SeedSequence(seed)``)."""
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[5])
 
 
-def _new_env(task: Task | str, split: str, sensor: str = "ideal", near_misses: int = 0):
+def _new_env(task: Task | str, split: str, sensor: str = "ideal", near_misses: int = 0, moves: bool = False):
     """A fresh environment (its own PyBullet client) for one episode; train allows the two extra steps
-    (and three per near miss: itself and two repairs).
+    (and three per near miss: itself and two repairs; ``moves``: :func:`moves_budget` steps).
 
     Fresh, not cached, so an episode cannot depend on what its worker ran before. (A simulator that
     only removed the last scene's bodies left 0.1 mm traces; ``World.clear`` now resets the simulation
     fully and a reused environment is bit-identical too, but a fresh one costs only about 0.1 s.)
     """
     slack = N_RANDOM + 3 * near_misses if split == "train" else 0
+    if moves:
+        resolved = task if isinstance(task, Task) else BUILTIN.get(task)
+        slack = moves_budget(resolved) - resolved.horizon
     return TvfEnv(task, EnvConfig(step_slack=slack), sensor=sensor)
 
 
@@ -152,20 +174,29 @@ def _state(env) -> tuple[np.ndarray, float]:
 
 
 def collect_episode(
-    task: Task | str, split: str, seed: int, sensor: str = "ideal", near_misses: int = 0
+    task: Task | str, split: str, seed: int, sensor: str = "ideal", near_misses: int = 0,
+    moves: str | None = None, mover: MoverFactory | None = None,
 ) -> tuple[Episode | None, Outcome]:  # fmt: skip
     """Run one episode in this process, its images seen through ``sensor`` (tvf.sim.sensors; the oracle
     acts on true poses), with ``near_misses`` of the expert's places moved a little off
-    (:func:`step_kinds`); returns (episode, outcome) with episode None on failure."""
-    env = _new_env(task, split, sensor, near_misses)
+    (:func:`step_kinds`), or, with ``moves``, every step that method's own move (``mover(moves, seed)``
+    acts; :func:`moves_budget` steps); returns (episode, outcome) with episode None on failure."""
+    if moves is not None and mover is None:
+        raise TvfError("an episode of a method's own moves needs its mover (tvf.policies.explore)")
+    env = _new_env(task, split, sensor, near_misses, moves is not None)
     try:
+        if moves is not None:
+            return _run_episode(env, split, seed, mover=(moves, mover(moves, seed)))
         return _run_episode(env, split, seed, near_misses)
     finally:
         env.close()
 
 
-def _next_action(env, kind: str, jitter: np.random.Generator, missed: int | None) -> np.ndarray | None:
+def _next_action(env, kind: str, jitter: np.random.Generator, missed: int | None, mover: Mover | None,
+                 obs: dict, goal: dict) -> np.ndarray | None:  # fmt: skip
     """The step's action; ``missed``: the block a near miss just moved, which the expert repairs first."""
+    if kind == "moves":
+        return mover.act(obs, goal)
     if kind == "random":
         return env.random_action()
     action = env.oracle_action(first=missed)
@@ -177,11 +208,15 @@ def _moved_block(before: np.ndarray, after: np.ndarray) -> int:
     return int(np.argmax(np.linalg.norm(after[:, :3] - before[:, :3], axis=1)))
 
 
-def _run_episode(env, split: str, seed: int, near_misses: int = 0) -> tuple[Episode | None, Outcome]:
+def _run_episode(env, split: str, seed: int, near_misses: int = 0, mover: tuple[str, Mover] | None = None
+                 ) -> tuple[Episode | None, Outcome]:  # fmt: skip
+    """One episode in ``env``: the expert's (with its random steps and near misses), or with ``mover``
+    (method, mover) every step that method's own move, kept whether or not it finishes the structure."""
     task = env.task.name
     out = Outcome(task, seed, False)
     try:
-        obs, _ = env.reset(seed=seed)
+        obs, info = env.reset(seed=seed)
+        goal = info["goal"]
     except TvfError as exc:
         out.reason = f"reset failed: {exc}"
         return None, out
@@ -190,13 +225,14 @@ def _run_episode(env, split: str, seed: int, near_misses: int = 0) -> tuple[Epis
     b, p = _state(env)
     blocks.append(b)
     progress.append(p)
-    kinds = step_kinds(env.task, split, seed, near_misses)
+    kinds = ["moves"] * moves_budget(env.task) if mover else step_kinds(env.task, split, seed, near_misses)
     jitter = near_miss_rng(seed)
     missed = None
     for step, kind in enumerate(kinds):
-        action = _next_action(env, kind, jitter, missed)
+        action = _next_action(env, kind, jitter, missed, mover and mover[1], obs, goal)
         if action is None:
-            why = "random action found no free pose" if kind == "random" else "oracle had no action"
+            whys = {"random": "random action found no free pose", "moves": "the method had no action"}
+            why = whys.get(kind, "oracle had no action")
             out.reason = f"{why} at step {step}"
             break
         obs, _, terminated, _, info = env.step(action)
@@ -215,13 +251,14 @@ def _run_episode(env, split: str, seed: int, near_misses: int = 0) -> tuple[Epis
     out.steps = len(picks)
     out.progress = progress[-1]
     success = bool(env.progress().success)
-    if not success:
+    if not success and not (mover and out.steps):
         out.reason = out.reason or f"structure not finished after {out.steps} steps"
         return None, out
     out.ok = True
     tpos, tyaw = env.world.target_poses()
     near_steps = [i for i, kind in enumerate(kinds[: len(picks)]) if kind == "near"]
     near = {"near_misses": near_steps} if near_misses else {}
+    near |= {"moves": mover[0]} if mover else {}
     episode = Episode(
         task=env.task.name,
         seed=seed,
@@ -234,19 +271,20 @@ def _run_episode(env, split: str, seed: int, near_misses: int = 0) -> tuple[Epis
         progress=np.asarray(progress, np.float32),
         blocks=np.stack(blocks),
         targets=np.concatenate([tpos, tyaw[:, None]], axis=1).astype(np.float32),
-        success=True,
+        success=success,
         attrs={"n_blocks": env.task.n_blocks, "primitives": out.primitives, **_config_attrs(env), **near},
     )
     return episode, out
 
 
 def episode_job(
-    task: Task, split: str, seed: int, folder: str | None, sensor: str = "ideal", near_misses: int = 0
+    task: Task, split: str, seed: int, folder: str | None, sensor: str = "ideal", near_misses: int = 0,
+    moves: str | None = None, mover: MoverFactory | None = None,
 ) -> Outcome:  # fmt: skip
     """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
     parent renames into place once every smaller seed of the task is settled (``folder`` None: return the
     file's bytes in ``Outcome.data`` for the parent to write)."""
-    episode, out = collect_episode(task, split, seed, sensor, near_misses)
+    episode, out = collect_episode(task, split, seed, sensor, near_misses, moves, mover)
     if episode is not None and folder is None:
         out.data = h5_bytes(episode)
     elif episode is not None:
@@ -279,11 +317,16 @@ class GenerationPlan:
     """The cameras the images are recorded through (a name of tvf.sim.sensors.SENSORS)."""
     near_misses: int = 0
     """Train split: this many of each episode's expert places moved a little off (:func:`step_kinds`)."""
+    moves: str | None = None
+    """A searching method whose own moves every step executes instead of the expert's (foresight data,
+    not demonstrations; :mod:`tvf.policies.explore`)."""
 
     def __post_init__(self) -> None:
         if self.near_misses < 0 or (self.near_misses and self.split != "train"):
             raise DataError(f"--near-misses {self.near_misses}: give 0 or more, with --split train "
                             "(foresight data; the test split is the pure expert)")  # fmt: skip
+        if self.moves is not None and self.near_misses:
+            raise DataError("--moves replaces every expert step; drop --near-misses")
 
     @property
     def folder(self) -> Path:
@@ -459,15 +502,19 @@ def generate(
     executor: Any = None,
     backend: str = "local",
     address: str | None = None,
+    mover: MoverFactory | None = None,
 ) -> GenerationReport:
     """Generate (or complete) the dataset described by ``plan``; see the module docstring.
 
     ``tasks`` resolves the plan's task names (default: the built-in table; pass the one loaded with a
     user's task file). ``backend`` and ``address`` choose where the episodes run (:mod:`tvf.parallel`;
     ``workers`` episodes at once). ``job`` (default :func:`episode_job`) and ``executor`` (an object with
-    ``submit``) exist for tests; an executor passed in is not shut down here.
+    ``submit``) exist for tests; an executor passed in is not shut down here. ``mover`` builds the
+    movers of a plan with ``moves`` (:func:`tvf.policies.explore.proposal_mover`).
     """
     check_backend(backend, address)
+    if plan.moves is not None and mover is None and job is None:
+        raise TvfError("a plan of a method's own moves needs generate(..., mover=proposal_mover)")
     table = tasks or BUILTIN
     resolved = {name: table.get(name) for name in plan.tasks}
     folder = plan.folder
@@ -477,8 +524,10 @@ def generate(
     with _Lock(folder), sigterm_raises():
         check_sensor(folder, plan.sensor)
         check_near_misses(folder, plan.near_misses)
-        if job is None and (plan.sensor != "ideal" or plan.near_misses):
-            job = partial(episode_job, sensor=plan.sensor, near_misses=plan.near_misses)
+        check_moves(folder, plan.moves)
+        if job is None and (plan.sensor != "ideal" or plan.near_misses or plan.moves):
+            job = partial(episode_job, sensor=plan.sensor, near_misses=plan.near_misses, moves=plan.moves,
+                          mover=mover)  # fmt: skip
         remove_stale_tmp(folder)
         states = _initial_states(plan, report)
         total = sum(min(s.want, len(s.seeds)) - s.kept for s in states)
@@ -574,6 +623,18 @@ def check_near_misses(folder: Path, near_misses: int) -> None:
         )
     if near_misses and not path.exists():
         atomic_write_json(path, {"near_misses": near_misses})
+
+
+def check_moves(folder: Path, moves: str | None) -> None:
+    """Refuse to mix the expert's episodes and a method's own moves (or two methods') in a split folder;
+    name a new folder's method."""
+    recorded = moves_of(folder)
+    if recorded != moves and ((folder / MOVES_FILE).exists() or episode_files(folder)):
+        held = f"the own moves of {recorded}" if recorded else "the expert's demonstrations"
+        fix = f"pass --moves {recorded}" if recorded else "drop --moves"
+        raise DataError(f"{folder} holds {held}; {fix} to resume it, or choose another --out")
+    if moves and not (folder / MOVES_FILE).exists():
+        atomic_write_json(folder / MOVES_FILE, {"moves": moves})
 
 
 def _sensor_record(folder: Path) -> dict[str, str]:

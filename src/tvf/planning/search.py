@@ -28,7 +28,7 @@ import torch
 from tvf.device import mixes_environments
 from tvf.models.gctn import argmax_pixels
 from tvf.models.goal_mask import mask_of, place_allowed, restricted
-from tvf.models.images import HEIGHT_CHANNEL, RGBH_CHANNELS
+from tvf.models.images import HEIGHT_CHANNEL, RGBH_CHANNELS, heights_of
 from tvf.models.symmetry import SymmetrizedGCTN
 from tvf.planning.levels import snap_heights
 from tvf.planning.proposals import (
@@ -39,6 +39,7 @@ from tvf.planning.proposals import (
     pick_peaks,
     with_extra_place,
 )
+from tvf.planning.support import FALL_PENALTY, rests
 
 
 def widest_node(k: int, root_k: int | None) -> int:
@@ -101,6 +102,10 @@ class PlannerConfig:
     snap_heights: bool = False
     """Set every height the VF moved to the nearest level a surface rests at (:mod:`tvf.planning.levels`)
     before the node is scored and expanded; False: the VF's image as it is (the paper's)."""
+    support_check: bool = False
+    """A child whose placed block would not rest on its parent's height map (:mod:`tvf.planning.support`)
+    has :data:`FALL_PENALTY` added to its distance, and so has every node below it: it ranks under
+    every node that rests. False: every imagined place counts as landed (the paper's)."""
     root_k: int | None = None
     """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
     A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
@@ -268,6 +273,8 @@ class _Level:
     states: torch.Tensor
     roots: np.ndarray
     ids: list[int]
+    falls: np.ndarray | None = None
+    """With the support check: whether the node's path holds a place that would not rest."""
 
 
 class TreeSearch:
@@ -469,6 +476,11 @@ class TreeSearch:
         children, distances = self._imagine(
             frontier.states[parent_rows], child_roots, goals, child_picks, child_places, yaws, mix
         )
+        falls = None
+        if cfg.support_check:
+            falls = ~rests(heights_of(frontier.states[parent_rows]), child_picks, child_places).cpu().numpy()
+            falls |= frontier.falls[parent_rows] if frontier.falls is not None else False
+            distances = distances + FALL_PENALTY * torch.as_tensor(falls, dtype=distances.dtype).to(distances)
         scores = cfg.gamma ** (level - 1) * (cfg.bonus - distances)
         ids = []
         for j, (row, root) in enumerate(zip(parent_rows, child_roots, strict=True)):
@@ -479,7 +491,7 @@ class TreeSearch:
                               float(scores[j])))  # fmt: skip
         for r, plan in enumerate(plans):
             self._count(plan, int((frontier.roots == r).sum()), int((child_roots == r).sum()))
-        return _Level(children, child_roots, ids)
+        return _Level(children, child_roots, ids, falls)
 
     def _goal_features(self, goals: torch.Tensor, mix: bool) -> torch.Tensor:
         """The GCTN's goal features of every root: one call for all (``mix``), else one per root."""

@@ -23,7 +23,7 @@ from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, T
 
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
-    "order_branch", "gamma", "root_alpha", "first_step_band", "snap_heights",
+    "order_branch", "gamma", "root_alpha", "first_step_band", "snap_heights", "support_check",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -95,6 +95,9 @@ class PolicySpec:
     snap_heights: bool | None = None
     """TVF: set every height the VF moved to the nearest level a surface rests at before a node is scored
     and expanded (:mod:`tvf.planning.levels`; None: the method's; False: the paper's)."""
+    support_check: bool | None = None
+    """TVF: rank a node whose path places a block that would not rest on its parent's height map under
+    every node that rests (:mod:`tvf.planning.support`; None: the method's; False: the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -142,7 +145,7 @@ def _oracle(spec: PolicySpec, env, device: torch.device) -> Policy:
     return OraclePolicy(env)
 
 
-def _load_gctn(spec: PolicySpec):
+def load_gctn(spec: PolicySpec):
     """The spec's GCTN, goal-masked or not, its picks centred or not, and symmetrised over its turns (the
     method's unless the spec sets them)."""
     gctn = load_trained(spec.gctn, "gctn")
@@ -212,14 +215,14 @@ def resolved_settings(spec: PolicySpec) -> dict:
 
 
 def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
-    return GctnPolicy(_load_gctn(spec), device, refine_yaw_of(spec))
+    return GctnPolicy(load_gctn(spec), device, refine_yaw_of(spec))
 
 
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     if foresight_of(spec) in SIMULATED:
         return _simulated_tvf(spec, env, device)
     vf = load_trained(spec.vf, "vf")
-    return TvfPolicy(_load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
+    return TvfPolicy(load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
 def _simulated_tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
@@ -231,7 +234,7 @@ def _simulated_tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
         )
     executed = SIMULATED[foresight]
     vf = load_trained(spec.vf, "vf").eval().to(device) if executed is not None else None
-    proposer = TreeSearch(_load_gctn(spec).eval().to(device), vf, planner_of(spec))
+    proposer = TreeSearch(load_gctn(spec).eval().to(device), vf, planner_of(spec))
     return SimulatedTvfPolicy(env, proposer, spec.method, refine_yaw_of(spec), executed)
 
 

@@ -60,6 +60,9 @@ class TrainConfig:
     init: Path | None = None
     """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
     file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""
+    extra_data: Path | None = None
+    """VF and latent only: a folder of a method's own moves (`tvf demos --moves`); all its episodes of the
+    run's tasks are added to the drawn demonstrations (docs/data.md, "The planner's own moves")."""
     val_data: Path | None = None
     """Test split for validation; default: the `test` folder beside the train split, if any."""
     val_every: int = 250

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from tvf.data.dataset import demo_subset, open_dataset
+from tvf.data.dataset import demo_subset, moves_of, open_dataset
 from tvf.data.format import DataError, Episode
 from tvf.data.samplers import GctnSampler, VfRolloutSampler, VfSampler
 from tvf.models.checkpoint import load_initial_weights, trained_checkpoint
@@ -33,13 +33,20 @@ PLACE_TOLERANCE_PX = 3
 """A predicted place within this many pixels (~1 cm, the success tolerance) of the label is right."""
 
 
-def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict[str, Any]]:
-    """The run's demo subset of the train split, the validation episodes and the data fingerprint."""
+def _load_episodes(cfg: TrainConfig, kind: str) -> tuple[list[Episode], list[Episode], dict[str, Any]]:
+    """The run's demo subset of the train split (and its --extra-data), the validation episodes and the
+    data fingerprint."""
     tasks = [t.name for t in task_table(cfg).resolve(cfg.tasks)]
     train = open_dataset(cfg.data, split="train" if _has_splits(cfg.data) else None, tasks=tasks)
+    if moves := moves_of(train.root):
+        raise TrainError(
+            f"{train.root} holds the own moves of {moves} (tvf demos --moves), not "
+            "demonstrations: give the demonstrations as --data and this folder as --extra-data"
+        )
     chosen = demo_subset(train, cfg.demos, cfg.seed, tasks)
     infos = [info for t in tasks for info in chosen[t]]
     episodes = train.load_all(infos)
+    extra = _extra_episodes(cfg, kind, tasks)
     val_eps: list[Episode] = []
     val_root = cfg.val_data or (Path(cfg.data) / "test" if _has_splits(cfg.data) else None)
     if val_root is not None and Path(val_root).exists():
@@ -48,15 +55,39 @@ def _load_episodes(cfg: TrainConfig) -> tuple[list[Episode], list[Episode], dict
             val_eps = val.load_all()
         except DataError as exc:
             raise TrainError(f"validation data: {exc}") from None
+    splits = {"train": episodes, "val": val_eps} | ({"extra": extra} if extra else {})
     data = {
         "data": str(cfg.data),
         "tasks": tasks,
         "demos": cfg.demos,
         "episodes": [[e.task, e.seed] for e in episodes],
         "data_fingerprint": fingerprint([[e.task, e.seed, e.n_steps] for e in episodes]),
-        "data_content": data_content({"train": episodes, "val": val_eps}),
+        "data_content": data_content(splits),
     }
-    return episodes, val_eps, data
+    if extra:
+        data |= {"extra_data": str(cfg.extra_data), "extra_episodes": [[e.task, e.seed] for e in extra]}
+    return episodes + extra, val_eps, data
+
+
+def _extra_episodes(cfg: TrainConfig, kind: str, tasks: list[str]) -> list[Episode]:
+    """Every episode of the run's tasks in ``--extra-data``, a folder of a method's own moves."""
+    if cfg.extra_data is None:
+        return []
+    if kind == "gctn":
+        raise TrainError("--extra-data adds foresight data (a method's own moves): VF and latent runs only; "
+                         "the GCTN learns from the expert's demonstrations")  # fmt: skip
+    try:
+        extra = open_dataset(cfg.extra_data, split="train" if _has_splits(cfg.extra_data) else None)
+    except DataError as exc:
+        raise TrainError(f"--extra-data: {exc}") from None
+    if not moves_of(extra.root):
+        raise TrainError(f"--extra-data {cfg.extra_data}: holds demonstrations, not a method's own moves "
+                         "(tvf demos --moves); draw more demonstrations with --demos instead")  # fmt: skip
+    infos = [info for t in tasks for info in extra.episodes.get(t, [])]
+    if not infos:
+        names = ", ".join(tasks)
+        raise TrainError(f"--extra-data {cfg.extra_data}: no episodes of the run's tasks ({names})")
+    return extra.load_all(infos)
 
 
 def data_content(splits: dict[str, list[Episode]]) -> dict[str, Any]:
@@ -107,7 +138,7 @@ def _job(
     training batches when it is not ``sampler_cls`` (which always draws the validation samples)."""
     judged = model if judged is None else judged
     init = _init_source(cfg, kind)  # before the data: a bad --init fails at once
-    episodes, val_eps, data = _load_episodes(cfg)
+    episodes, val_eps, data = _load_episodes(cfg, kind)
     r = model.preset.n_rotations  # the samplers' rotation bins are the model's
     sampler = (train_sampler or sampler_cls)(
         episodes, batch_size=cfg.batch, augment=True, seed=cfg.seed, n_rotations=r
