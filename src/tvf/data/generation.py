@@ -284,7 +284,8 @@ def episode_job(
     """Worker entry point: run one episode and, if it succeeded, write it to a temporary file that the
     parent renames into place once every smaller seed of the task is settled (``folder`` None: return the
     file's bytes in ``Outcome.data`` for the parent to write)."""
-    episode, out = collect_episode(task, split, seed, sensor, near_misses, moves, mover)
+    own_moves = {"moves": moves, "mover": mover} if moves is not None else {}
+    episode, out = collect_episode(task, split, seed, sensor, near_misses, **own_moves)
     if episode is not None and folder is None:
         out.data = h5_bytes(episode)
     elif episode is not None:
