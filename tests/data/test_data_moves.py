@@ -19,6 +19,7 @@ from tvf.data.generation import check_moves, collect_episode, moves_budget
 from tvf.errors import TvfError
 from tvf.geometry import world_to_pixel
 from tvf.planning.actions import bin_action
+from tvf.planning.search import TreeSearch
 from tvf.policies.explore import ProposalExplorer, check_moves_method, moves_rng
 from tvf.tasks import get_task
 
@@ -109,6 +110,7 @@ class ThreeProposals:
 
     n_rotations = 36
     gctn = SimpleNamespace(parameters=lambda: iter([torch.zeros(1)]))
+    propose_actions = TreeSearch.propose_actions  # the real conversion of proposals to actions
 
     def propose(self, current, goal, level):
         assert level == 1 and current.shape == goal.shape == (1, 4, 160, 160)

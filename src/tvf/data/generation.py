@@ -186,7 +186,7 @@ def collect_episode(
     env = _new_env(task, split, sensor, near_misses, moves is not None)
     try:
         if moves is not None:
-            return _run_episode(env, split, seed, mover=(moves, mover(moves, seed)))
+            return _run_episode(env, split, seed, moves=moves, mover=mover(moves, seed))
         return _run_episode(env, split, seed, near_misses)
     finally:
         env.close()
@@ -208,10 +208,10 @@ def _moved_block(before: np.ndarray, after: np.ndarray) -> int:
     return int(np.argmax(np.linalg.norm(after[:, :3] - before[:, :3], axis=1)))
 
 
-def _run_episode(env, split: str, seed: int, near_misses: int = 0, mover: tuple[str, Mover] | None = None
-                 ) -> tuple[Episode | None, Outcome]:  # fmt: skip
+def _run_episode(env, split: str, seed: int, near_misses: int = 0, moves: str | None = None,
+                 mover: Mover | None = None) -> tuple[Episode | None, Outcome]:  # fmt: skip
     """One episode in ``env``: the expert's (with its random steps and near misses), or with ``mover``
-    (method, mover) every step that method's own move, kept whether or not it finishes the structure."""
+    every step the own move of the method ``moves``, kept whether or not it finishes the structure."""
     task = env.task.name
     out = Outcome(task, seed, False)
     try:
@@ -225,11 +225,11 @@ def _run_episode(env, split: str, seed: int, near_misses: int = 0, mover: tuple[
     b, p = _state(env)
     blocks.append(b)
     progress.append(p)
-    kinds = ["moves"] * moves_budget(env.task) if mover else step_kinds(env.task, split, seed, near_misses)
+    kinds = ["moves"] * moves_budget(env.task) if moves else step_kinds(env.task, split, seed, near_misses)
     jitter = near_miss_rng(seed)
     missed = None
     for step, kind in enumerate(kinds):
-        action = _next_action(env, kind, jitter, missed, mover and mover[1], obs, goal)
+        action = _next_action(env, kind, jitter, missed, mover, obs, goal)
         if action is None:
             whys = {"random": "random action found no free pose", "moves": "the method had no action"}
             why = whys.get(kind, "oracle had no action")
@@ -251,14 +251,14 @@ def _run_episode(env, split: str, seed: int, near_misses: int = 0, mover: tuple[
     out.steps = len(picks)
     out.progress = progress[-1]
     success = bool(env.progress().success)
-    if not success and not (mover and out.steps):
+    if not success and not (moves and out.steps):
         out.reason = out.reason or f"structure not finished after {out.steps} steps"
         return None, out
     out.ok = True
     tpos, tyaw = env.world.target_poses()
     near_steps = [i for i, kind in enumerate(kinds[: len(picks)]) if kind == "near"]
     near = {"near_misses": near_steps} if near_misses else {}
-    near |= {"moves": mover[0]} if mover else {}
+    near |= {"moves": moves} if moves else {}
     episode = Episode(
         task=env.task.name,
         seed=seed,

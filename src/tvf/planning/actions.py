@@ -34,6 +34,11 @@ def pixels_to_action(pick: np.ndarray, place: np.ndarray, yaw: float, height: np
     return np.array([[*pick_xy, pick_z, 0.0], [*place_xy, place_z, float(yaw)]], dtype=np.float64)
 
 
+def refining_height(goal: dict, refine_yaw: bool) -> np.ndarray | None:
+    """The goal's height map where the turn is refined (:func:`bin_action`'s ``goal_height``), else None."""
+    return goal["height"] if refine_yaw else None
+
+
 def bin_action(
     pick: np.ndarray, place: np.ndarray, rot_bin: int, n_rotations: int, height: np.ndarray,
     goal_height: np.ndarray | None = None,

@@ -30,6 +30,7 @@ from tvf.models.gctn import argmax_pixels
 from tvf.models.goal_mask import mask_of, place_allowed, restricted
 from tvf.models.images import HEIGHT_CHANNEL, RGBH_CHANNELS, heights_of
 from tvf.models.symmetry import SymmetrizedGCTN
+from tvf.planning.actions import bin_action
 from tvf.planning.levels import snap_heights
 from tvf.planning.proposals import (
     BLOCK_PIXELS,
@@ -403,6 +404,16 @@ class TreeSearch:
             distances.append(height_distance(images, goals[self._root_rows(roots, p)]))
         return torch.cat(children), torch.cat(distances)
 
+    def propose_actions(self, current: torch.Tensor, goal: torch.Tensor, height: np.ndarray,
+                        goal_height: np.ndarray | None = None, level: int = 1
+                        ) -> tuple[Proposals, np.ndarray, list[np.ndarray]]:  # fmt: skip
+        """:meth:`propose` and each proposal's world action (2, 4) on the scene's height map ``height``
+        (:func:`~tvf.planning.actions.bin_action`; with ``goal_height`` the turn refined)."""
+        props, bins = self.propose(current, goal, level)
+        actions = [bin_action(pick, place, int(rot), self.n_rotations, height, goal_height)
+                   for pick, place, rot in zip(props.picks, props.places, bins, strict=True)]  # fmt: skip
+        return props, bins, actions
+
     @torch.no_grad()
     def search(self, current: torch.Tensor, goal: torch.Tensor, keep_images: bool = False) -> Plan:
         """Plan from the real state ``current`` towards ``goal`` (normalised RGB-H, (1, 4, H, W) each)."""
@@ -473,12 +484,11 @@ class TreeSearch:
         channels = torch.as_tensor(np.concatenate([p.rotations for p in proposals]))
         rotations = self.gctn.rotation_bins(channels).cpu().numpy()  # bins of a full turn
         yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
-        children, distances = self._imagine(
-            frontier.states[parent_rows], child_roots, goals, child_picks, child_places, yaws, mix
-        )
+        parents = frontier.states[parent_rows]
+        children, distances = self._imagine(parents, child_roots, goals, child_picks, child_places, yaws, mix)
         falls = None
         if cfg.support_check:
-            falls = ~rests(heights_of(frontier.states[parent_rows]), child_picks, child_places).cpu().numpy()
+            falls = ~rests(heights_of(parents), child_picks, child_places).cpu().numpy()
             falls |= frontier.falls[parent_rows] if frontier.falls is not None else False
             distances = distances + FALL_PENALTY * torch.as_tensor(falls, dtype=distances.dtype).to(distances)
         scores = cfg.gamma ** (level - 1) * (cfg.bonus - distances)

@@ -22,7 +22,7 @@ import torch
 
 from tvf.errors import TvfError
 from tvf.models.images import to_rgbh
-from tvf.planning.actions import bin_action
+from tvf.planning.actions import refining_height
 from tvf.planning.search import Node, Plan, TreeSearch, best_node, height_distance
 
 FORESIGHTS = ("vf", "simulator", "simulator-first")
@@ -56,14 +56,13 @@ class SimulatedSearch:
                   ) -> list[tuple[Node, np.ndarray]]:  # fmt: skip
         """The proposals of the scene ``obs`` (``current``: its RGB-H) towards ``goal`` (``target``) at
         ``level`` as (unscored node, world action) pairs."""
-        props, bins = self.proposer.propose(current, target, level)
-        goal_height = goal["height"] if self.refine_yaw else None
-        n = self.proposer.n_rotations
-        out = []
-        for pick, place, rot in zip(props.picks, props.places, bins, strict=True):
-            action = bin_action(pick, place, int(rot), n, obs["height"], goal_height)
-            out.append((Node(-1, -1, level, pick, place, int(rot), 0.0, 0.0), action))
-        return out
+        goal_height = refining_height(goal, self.refine_yaw)
+        props, bins, actions = self.proposer.propose_actions(current, target, obs["height"], goal_height,
+                                                             level)  # fmt: skip
+        return [
+            (Node(-1, -1, level, pick, place, int(rot), 0.0, 0.0), action)
+            for pick, place, rot, action in zip(props.picks, props.places, bins, actions, strict=True)
+        ]
 
     @torch.no_grad()
     def search(self, obs: dict, goal: dict, keep_images: bool = False) -> tuple[Plan, list[np.ndarray]]:

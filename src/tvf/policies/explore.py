@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from tvf.errors import TvfError
-from tvf.planning.actions import bin_action
+from tvf.planning.actions import refining_height
 from tvf.planning.search import TreeSearch
 from tvf.policies.base import Observation
 from tvf.policies.learned import observation_tensor
@@ -51,11 +51,9 @@ class ProposalExplorer:
     def act(self, obs: Observation, goal: Observation) -> np.ndarray:
         device = next(self.search.gctn.parameters()).device
         current, target = observation_tensor(obs, device), observation_tensor(goal, device)
-        props, bins = self.search.propose(current, target, 1)
-        i = int(self.rng.integers(len(props.picks)))
-        goal_height = goal["height"] if self.refine_yaw else None
-        return bin_action(props.picks[i], props.places[i], int(bins[i]), self.search.n_rotations,
-                          obs["height"], goal_height)  # fmt: skip
+        _, _, actions = self.search.propose_actions(current, target, obs["height"],
+                                                    refining_height(goal, self.refine_yaw))  # fmt: skip
+        return actions[int(self.rng.integers(len(actions)))]
 
 
 def check_moves_method(method: str) -> None:

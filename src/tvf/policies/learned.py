@@ -9,7 +9,7 @@ import torch
 
 from tvf.device import mixes_environments
 from tvf.models.images import to_rgbh
-from tvf.planning.actions import bin_action
+from tvf.planning.actions import bin_action, refining_height
 from tvf.planning.search import Plan, PlannerConfig, TreeSearch
 from tvf.planning.simulated import SimulatedSearch
 from tvf.policies.base import Observation
@@ -78,8 +78,9 @@ class GctnPolicy:
              goals: Sequence[Observation]) -> list:  # fmt: skip
         pick, place, rot, _ = self.model.act(current, goal)
         pick, place, r = pick.cpu().numpy(), place.cpu().numpy(), self.model.preset.n_rotations
+        refine = self.refine_yaw
         return [
-            bin_action(pick[i], place[i], int(rot[i]), r, obs["height"], _goal_height(goal, self.refine_yaw))
+            bin_action(pick[i], place[i], int(rot[i]), r, obs["height"], refining_height(goal, refine))
             for i, (obs, goal) in enumerate(zip(observations, goals, strict=True))
         ]
 
@@ -125,7 +126,7 @@ class TvfPolicy:
                 p.first.rotation,
                 n,
                 obs["height"],
-                _goal_height(goal, self.refine_yaw),
+                refining_height(goal, self.refine_yaw),
             )
             for p, obs, goal in zip(plans, observations, goals, strict=True)
         ]
@@ -150,8 +151,3 @@ class SimulatedTvfPolicy:
     def act(self, obs: Observation, goal: Observation) -> np.ndarray:
         self.last_plan, actions = self.search.search(obs, goal, self.keep_images)
         return actions[self.last_plan.path[0].index]
-
-
-def _goal_height(goal: Observation, refine_yaw: bool) -> np.ndarray | None:
-    """The goal's height map where the turn is refined (tvf.planning.actions.bin_action), else None."""
-    return goal["height"] if refine_yaw else None
