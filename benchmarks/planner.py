@@ -17,7 +17,8 @@ adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+c
 
 ``--vfs PATH[,PATH]`` also times every ``--rules`` entry of the ``lite`` preset with each of these VFs (a run
 folder, .pt or .safetensors) in place of the shipped one, in the same run (``tvf-large/RULE/vf:PATH``):
-the side-by-side measurement a new VF is judged by. ``--gctns PATH[,PATH]`` does the same for other GCTNs
+the side-by-side measurement a new VF is judged by; ``rigid`` there is the foresight without a network
+(``--foresight rigid``, :mod:`tvf.planning.rigid`). ``--gctns PATH[,PATH]`` does the same for other GCTNs
 (``tvf-large/RULE/gctn:PATH``, with the shipped VF), e.g. a run trained with ``--gctn-kernels c4``.
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
@@ -41,6 +42,7 @@ from tvf.models.pick_centre import centring_picks
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import symmetrized
 from tvf.models.vf import VisualForesight
+from tvf.planning.rigid import RigidForesight
 from tvf.planning.search import PlannerConfig, TreeSearch
 
 
@@ -111,6 +113,13 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
     return fields, turns, places, centre
 
 
+def _foresight(path: str, device: torch.device):
+    """A VF run folder or file of ``--vfs``, or ``rigid``: the foresight without a network."""
+    from tvf.models.checkpoint import load_trained
+
+    return RigidForesight() if path == "rigid" else load_trained(path, "vf", device)
+
+
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str],
           vfs: tuple[str, ...] = (), gctns: tuple[str, ...] = ()) -> dict:  # fmt: skip
     gctn, vf, shipped = load_models(preset_name, device)
@@ -119,7 +128,7 @@ def bench(preset_name: str, device: torch.device, images, repeats: int, rules: l
     # (row suffix, GCTN, VF): the shipped pair, then each other model beside the shipped one
     pairs = [("", gctn, vf)]
     if preset_name == "lite":
-        pairs += [(f"/vf:{path}", gctn, load_trained(path, "vf", device)) for path in vfs]
+        pairs += [(f"/vf:{path}", gctn, _foresight(path, device)) for path in vfs]
         pairs += [(f"/gctn:{path}", load_trained(path, "gctn", device), vf) for path in gctns]
     current, goal = (x.to(device) for x in images)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)

@@ -82,7 +82,7 @@ def load_planner(
     method: str = "tvf-large", gctn: str | None = None, vf: str | None = None, device: str = "auto",
     keep_images: bool = False, turns: int | None = None, goal_mask: bool | None = None,
     mask_places: str | None = None, refine_yaw: bool | None = None, centred_share: float | None = None,
-    centre_picks: bool | None = None, **planner,
+    centre_picks: bool | None = None, foresight: str | None = None, **planner,
 ) -> Planner:  # fmt: skip
     """A planner of ``method`` (gctn | tvf-small | tvf-large, or one of them with the paper's rules:
     gctn-paper | tvf-small-paper | tvf-large-paper, or without the image rules: gctn-no-image-rules |
@@ -98,8 +98,10 @@ def load_planner(
     method's) and ``centred_share`` sets how near a region's middle the centred ones lie (default 0.9);
     ``refine_yaw`` True sets the place's turn to the block yaws read from the two height maps
     (:mod:`tvf.planning.yaw`; default: the method's); ``centre_picks`` True moves the GCTN's picks to the
-    centres of the block faces under them (:mod:`tvf.models.pick_centre`; default: the method's). Errors
-    name the bad argument or file in one line."""
+    centres of the block faces under them (:mod:`tvf.models.pick_centre`; default: the method's);
+    ``foresight`` "rigid" draws the search's images by moving the picked block on the height map instead
+    of the VF (:mod:`tvf.planning.rigid`; default: the VF; the simulator ones need an episode's
+    environment: ``tvf eval``). Errors name the bad argument or file in one line."""
     if method not in LEARNED_METHODS:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(LEARNED_METHODS)}")
     unknown = sorted(set(planner) - set(PLANNER_OPTIONS))
@@ -116,6 +118,7 @@ def load_planner(
         refine_yaw=refine_yaw,
         centred_share=centred_share,
         centre_picks=centre_picks,
+        foresight=foresight,
         **planner,
     )
     policy = make_policy(spec)

@@ -70,6 +70,20 @@ def test_every_planner_option_of_the_cli_reaches_the_search():
     assert type(bare.gctn).__name__ == "SymmetrizedGCTN" and mask_of(bare.gctn) is None
 
 
+def test_a_planner_can_foresee_without_a_network(scene):
+    _, obs = scene
+    goal = obs["desired_goal"]
+    planner = tvf.load_planner("tvf-large-no-image-rules", foresight="rigid", support_check=True)
+    search = planner._policy.search
+    assert type(search.vf).__name__ == "RigidForesight" and search.config.support_check
+    decision = planner.next_action(obs["color"], obs["height"], goal["color"], goal["height"])
+    assert decision.as_array().shape == (2, 4) and decision.plan.counts["vf_states"] >= 3
+    with pytest.raises(TvfError, match="only tvf eval and tvf ablate run it"):
+        tvf.load_planner("tvf-large", foresight="simulator")
+    with pytest.raises(TvfError, match="unknown --foresight 'dream'"):
+        tvf.load_planner("tvf-large", foresight="dream")
+
+
 def test_bad_arrays_and_arguments_are_one_line_errors(scene):
     _, obs = scene
     planner = tvf.load_planner("gctn")

@@ -194,7 +194,7 @@ def test_cli_horizon_flag(setup, tmp_path, capsys):
     assert code == 0 and "| vf | 2 | 2 |" in stdout  # the first (3-step) episode of each task: 2 windows
     doc = json.loads((out / "metrics.json").read_text())
     assert set(doc) == {"train", "unseen", "horizons"}
-    assert set(doc["horizons"]["train"]) == {"vf", "copy", "paste"}
+    assert set(doc["horizons"]["train"]) == {"vf", "copy", "paste", "rigid"}
     assert set(doc["horizons"]["unseen"]["paste"]) == {"1", "2"}
     assert doc["horizons"]["unseen"]["paste"]["2"]["transitions"] == 2
     assert (out / "horizons.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -114,7 +114,9 @@ class PlannerFlags:
     proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
     research, about 0.4 s a node on a laptop core; `tvf eval` and `tvf ablate` only; docs/planner.md) |
     simulator-first (the first actions executed, the levels below imagined by the VF from their real
-    outcomes: which of the VF's imagined steps caps depth)."""
+    outcomes: which of the VF's imagined steps caps depth) | rigid (no network: the picked block moved
+    as a rigid body on the height map, landing on what is under it; falls are not drawn;
+    docs/planner.md)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip

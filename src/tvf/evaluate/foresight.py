@@ -10,8 +10,10 @@ the unseen tasks separately:
   ``changed_height_mae_mm``: height MAE on the pixels whose true height changed by more than 5 mm.
 
 Baselines: ``copy`` predicts the input unchanged; ``paste`` pastes the place mask (the rotated window
-around the pick, no network) onto the input at the place pixel; ``latent``, when a latent-dynamics run
-is given (:class:`tvf.models.latent.LatentDynamics`), is a learned model scored like the VF.
+around the pick, no network) onto the input at the place pixel; ``rigid`` moves the picked block as a
+rigid body (:class:`tvf.planning.rigid.RigidForesight`, the search's ``--foresight rigid``); ``latent``,
+when a latent-dynamics run is given (:class:`tvf.models.latent.LatentDynamics`), is a learned model
+scored like the VF.
 
 Multi-step (``horizon`` > 1, :func:`rollout_metrics`): from the real image of every step t, each method
 is fed its own output along the recorded actions of steps t, t+1, ... and scored against the real image
@@ -37,11 +39,13 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.vf import encode_action, height_changed, paste_place_window
 from tvf.planning.levels import snap_heights
+from tvf.planning.rigid import RigidForesight
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
-METHODS = ("vf", "copy", "paste")
+METHODS = ("vf", "copy", "paste", "rigid")
 """The methods of every evaluation; learned models passed as ``others`` (``latent``) come after the VF."""
+RIGID = RigidForesight()
 
 
 def paste_baseline(rgbh: torch.Tensor, pick, place, yaw, window: int) -> torch.Tensor:
@@ -116,16 +120,17 @@ def rollout_metrics(
     into model inputs) and compares with the real frame t+k. Horizon k thus covers every window of k
     steps inside an episode. "Changed" pixels (``changed_height_mae_mm``) are those whose true height
     differs from the rollout's start image by more than 5 mm. ``copy`` keeps the start image; ``paste``
-    pastes onto its own previous output. ``others`` ({name: model}) are rolled out as the VF is. One
-    batched model call per horizon step and model covers all rollouts. Returns the per-window metrics and
-    the first step's batch with the VF's prediction (``pred``).
+    pastes onto its own previous output, and ``rigid`` moves the block on its own. ``others`` ({name:
+    model}) are rolled out as the VF is. One batched model call per horizon step and model covers all
+    rollouts. Returns the per-window metrics and the first step's batch with the VF's prediction
+    (``pred``).
     """
     n_steps = np.array([e.n_steps for e in sampler.episodes], np.int64)
     ep = np.repeat(np.arange(len(n_steps)), n_steps)
     start = np.concatenate([np.arange(n) for n in n_steps])
     left = n_steps[ep] - start  # steps from each window's start to the episode's end
     others = others or {}
-    methods = ("vf", *others, "copy", "paste")
+    methods = ("vf", *others, "copy", "paste", "rigid")
     out: PerWindow = {m: {} for m in methods}
     active = np.arange(len(ep))
     state: dict[str, torch.Tensor] = {}
@@ -150,6 +155,7 @@ def rollout_metrics(
             **{n: m.predict_rgbh(state[n], b["pick"], b["place"], b["yaw"]) for n, m in others.items()},
             "copy": origin,
             "paste": paste_baseline(state["paste"], b["pick"], b["place"], b["yaw"], model.window),
+            "rigid": RIGID.predict_rgbh(state["rigid"], b["pick"], b["place"], b["yaw"]),
         }
         for method, pred in state.items():
             out[method][k] = transition_metrics(pred, origin, target)

@@ -16,6 +16,7 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
 from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
+from tvf.planning.rigid import RigidForesight
 from tvf.planning.search import PlannerConfig, TreeSearch, widest_node
 from tvf.planning.simulated import FORESIGHTS, SIMULATED
 from tvf.policies.base import Policy
@@ -87,8 +88,9 @@ class PolicySpec:
     foresight: str | None = None
     """TVF: what scores the search's nodes, ``vf`` (the VF's imagined images; None: this), ``simulator``
     (each proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound
-    for research; :mod:`tvf.planning.simulated`) or ``simulator-first`` (the first actions executed, the
-    levels below imagined by the VF)."""
+    for research; :mod:`tvf.planning.simulated`), ``simulator-first`` (the first actions executed, the
+    levels below imagined by the VF) or ``rigid`` (the picked block moved as a rigid body, no network:
+    :mod:`tvf.planning.rigid`)."""
     first_step_band: float | None = None
     """TVF: only root actions whose one-step score is within this of the best one's compete by their
     subtrees (None: the method's, every root action for every method, the paper's)."""
@@ -186,7 +188,7 @@ def centre_picks_of(spec: PolicySpec) -> bool:
 
 def foresight_of(spec: PolicySpec) -> str:
     """What scores ``spec``'s search: ``vf`` unless the spec asks for the ``simulator`` (or
-    ``simulator-first``)."""
+    ``simulator-first``, ``rigid``)."""
     return spec.foresight or "vf"
 
 
@@ -221,7 +223,7 @@ def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     if foresight_of(spec) in SIMULATED:
         return _simulated_tvf(spec, env, device)
-    vf = load_trained(spec.vf, "vf")
+    vf = RigidForesight() if foresight_of(spec) == "rigid" else load_trained(spec.vf, "vf")
     return TvfPolicy(load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 

@@ -1,0 +1,133 @@
+"""A foresight without a network: the picked block moved as a rigid body (``--foresight rigid``).
+
+The `lite` VF foresees the expert's moves within 2-3 mm but the GCTN's own moves on the unseen tasks
+a block off, and its blurred surfaces are too soft for the support check to read (docs/results.md, "The
+VF on the planner's own moves", "A support check on the places"). This world's blocks are rigid cubes,
+so one step of foresight can also be drawn from the height map alone:
+
+1. the picked block is the set of pixels joined to the pick pixel at its height (within
+   :data:`SAME_SURFACE`), no further than :data:`REACH` pixels from it; a pick on nothing a block tall
+   (the table, a base cell) moves nothing, as the suction lifts nothing;
+2. where it stood the surface drops by one block, coloured as the level it shows: the table, a base
+   cell or another block (each colour read from the same image);
+3. its pixels turn by the place yaw about the pick and move to the place (the transform of the VF's
+   place mask, :func:`tvf.models.vf.encode_action`) and land on the highest surface under them.
+
+Falls are not drawn: a block put half over its support lands flat at the support's level
+(``PlannerConfig.support_check``, :mod:`tvf.planning.support`, ranks such children lower; with this
+foresight it cost TVF-L episodes on validation seeds). Without the image rules TVF-L with it finished
+80.0 % of the unseen test episodes against 65.6 % with the `lite` VF (docs/results.md, "A foresight
+without a network"). An option and a deviation from the paper's learned VF (docs/deviations.md P22).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from tvf.geometry import se2_output_to_input, warp_images
+from tvf.models.images import HEIGHT_CHANNEL, HEIGHT_MEAN, HEIGHT_STD, ArrayLike, as_pixels, clamp_rgbh
+from tvf.planning.support import LIFT_RADIUS
+from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
+
+SAME_SURFACE = 0.01
+"""Metres: pixels joined to the pick within this of its height belong to the picked block's top."""
+REACH = 2 * LIFT_RADIUS
+"""Pixels: the picked block's pixels lie within this of the pick (a pick at one corner of a block
+turned 45 degrees still reaches the opposite one)."""
+FILL_STEPS = int(REACH) + 2
+"""Growth steps of the flood fill from the pick pixel: enough to cross :data:`REACH`."""
+LIFTABLE = BLOCK_SIZE / 2
+"""Metres: a pick lower than this lifts nothing (the table, a base cell's top)."""
+TABLE_LEVEL = CELL_THICKNESS / 2
+"""Metres: an uncovered surface lower than this is the table; up to :data:`LIFTABLE` a base cell, above
+it another block."""
+
+
+def _metres(normalised: torch.Tensor) -> torch.Tensor:
+    return normalised * HEIGHT_STD + HEIGHT_MEAN
+
+
+def _normalised(metres: torch.Tensor) -> torch.Tensor:
+    return (metres - HEIGHT_MEAN) / HEIGHT_STD
+
+
+def picked_block(heights: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
+    """(B, H, W) bool: the pixels of the block picked at ``picks`` (B, 2 rows, cols) on ``heights``
+    (B, H, W metres); empty where the pick is lower than :data:`LIFTABLE`."""
+    b, h, w = heights.shape
+    index = torch.arange(b, device=heights.device)
+    top = heights[index, picks[:, 0], picks[:, 1]]
+    rows = torch.arange(h, device=heights.device)[None, :, None] - picks[:, 0, None, None]
+    cols = torch.arange(w, device=heights.device)[None, None, :] - picks[:, 1, None, None]
+    allowed = ((heights - top[:, None, None]).abs() <= SAME_SURFACE) & (rows**2 + cols**2 <= REACH**2)
+    allowed &= (top >= LIFTABLE)[:, None, None]
+    grown = torch.zeros_like(heights)
+    grown[index, picks[:, 0], picks[:, 1]] = 1.0
+    grown = grown * allowed
+    for _ in range(FILL_STEPS):
+        grown = F.max_pool2d(grown[:, None], 3, stride=1, padding=1)[:, 0] * allowed
+    return grown > 0.5
+
+
+def _mean_colour(
+    colours: torch.Tensor, where: torch.Tensor, fallback: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(B, 3) mean colour of the pixels ``where`` (B, H, W) of ``colours`` (B, 3, H, W); ``fallback``
+    (B, 3) where an image has none."""
+    weights = where.to(colours)[:, None]
+    count = weights.sum(dim=(-2, -1))
+    mean = (colours * weights).sum(dim=(-2, -1)) / count.clamp(min=1)
+    return mean if fallback is None else torch.where(count > 0, mean, fallback)
+
+
+def uncovered_colours(
+    colours: torch.Tensor, heights: torch.Tensor, block: torch.Tensor, lowered: torch.Tensor
+) -> torch.Tensor:
+    """(B, 3, H, W) the colour each pixel would show at the heights ``lowered`` (B, H, W): the table, base
+    cell or block colour (normalised) of the scene ``colours`` (B, 3, H, W), ``heights`` (B, H, W) whose
+    picked block's pixels are ``block`` (B, H, W; its colour is the blocks')."""
+    table = _mean_colour(colours, heights < TABLE_LEVEL / 2)
+    cell = _mean_colour(colours, (heights - CELL_THICKNESS).abs() < TABLE_LEVEL / 2, table)
+    red = _mean_colour(colours, block, table)
+    level = torch.where(lowered < TABLE_LEVEL, 0, torch.where(lowered < LIFTABLE, 1, 2))
+    palette = torch.stack([table, cell, red], dim=1)  # (B, 3 levels, 3 channels)
+    shown = torch.gather(palette, 1, level.flatten(1)[:, :, None].expand(-1, -1, 3))
+    return shown.transpose(1, 2).reshape(colours.shape)
+
+
+class RigidForesight(nn.Module):
+    """The next image after a pick-and-place as a rigid move of the picked block (the module docstring);
+    the VF's :meth:`predict_rgbh` interface, so :class:`~tvf.planning.search.TreeSearch` takes it as its
+    foresight. No parameters; batched over the images."""
+
+    @torch.no_grad()
+    def predict_rgbh(
+        self, rgbh: torch.Tensor, pick_pixels: ArrayLike, place_pixels: ArrayLike, yaws: ArrayLike
+    ) -> torch.Tensor:
+        """Normalised RGB-H (B, 4, H, W), pick and place pixels (B, 2 rows, cols), place yaw changes (B,)
+        in radians (world yaw, geometry's convention) -> the imagined next images (B, 4, H, W)."""
+        if rgbh.dim() != 4 or rgbh.shape[1] != HEIGHT_CHANNEL + 1:
+            raise ValueError(f"normalised RGB-H (B, 4, H, W) expected, got {tuple(rgbh.shape)}")
+        b, _, h, w = rgbh.shape
+        picks = as_pixels(pick_pixels, b, (h, w)).to(rgbh.device)
+        places = as_pixels(place_pixels, b, (h, w)).to(rgbh.device)
+        heights = _metres(rgbh[:, HEIGHT_CHANNEL])
+        block = picked_block(heights, picks)
+        # the block leaves: its pixels drop by one block and show the level beneath
+        lowered = torch.where(block, (heights - BLOCK_SIZE).clamp(min=0.0), heights)
+        below = uncovered_colours(rgbh[:, :HEIGHT_CHANNEL], heights, block, lowered)
+        colours = torch.where(block[:, None], below, rgbh[:, :HEIGHT_CHANNEL])
+        # its pixels move as the VF's place mask does and land on the highest surface under them
+        moves = se2_output_to_input(
+            torch.as_tensor(yaws, dtype=torch.float32).reshape(b).cpu(), picks.float().cpu(),
+            (places - picks).float().cpu(),
+        )  # fmt: skip
+        carried = torch.cat([rgbh[:, :HEIGHT_CHANNEL], block[:, None].to(rgbh)], dim=1)
+        moved = warp_images(carried, moves, mode="nearest")
+        footprint = moved[:, HEIGHT_CHANNEL] > 0.5
+        floor = torch.where(footprint, lowered, torch.zeros_like(lowered)).amax(dim=(-2, -1))
+        landed = torch.where(footprint, floor[:, None, None] + BLOCK_SIZE, lowered)
+        colours = torch.where(footprint[:, None], moved[:, :HEIGHT_CHANNEL], colours)
+        return clamp_rgbh(torch.cat([colours, _normalised(landed)[:, None]], dim=1))
