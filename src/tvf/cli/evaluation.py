@@ -104,8 +104,9 @@ class EvalCmd:
 
 @dataclass(frozen=True)
 class EvalVfCmd:
-    """Prediction quality of a visual-foresight model on a test split, beside the copy and paste baselines
-    (and, with --latent RUN, the latent-dynamics baseline of `tvf train latent`).
+    """Prediction quality of a visual-foresight model on a test split, beside the copy, paste and rigid
+    baselines (rigid: the picked block moved on the height map, the search's --foresight rigid) and, with
+    --latent RUN, the latent-dynamics baseline of `tvf train latent`.
 
     Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error);
     with --horizon H > 1 also multi-step rollout metrics (the model fed its own predictions for 1..H
