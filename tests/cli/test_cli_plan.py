@@ -140,6 +140,18 @@ def test_plan_on_exported_views_takes_the_simulators_action(capsys, rigs, tmp_pa
     assert np.array_equal(saved.height, load_rgbh(rig / "scene", WORKSPACE, "--views").height)
 
 
+def test_plan_can_foresee_without_a_network(capsys, rigs, tmp_path):
+    rig = rigs["put-t"] / "rig"
+    args = ("plan", "--method", "tvf-large-no-image-rules", "--views", str(rig / "scene"), "--goal",
+            str(rig / "goal"), "--foresight", "rigid")  # fmt: skip
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "rigid"))
+    assert code == 0, err
+    record = json.loads((tmp_path / "rigid" / "decision.json").read_text())
+    assert set(record) >= {"pick", "place"} and (tmp_path / "rigid" / "decision.png").is_file()
+    code, _, err = run(capsys, *args[:-1], "simulator", "--out", str(tmp_path / "sim"))
+    assert code == 2 and "simulator" in err and not (tmp_path / "sim").exists()
+
+
 def test_a_saved_goal_image_and_a_moved_rig_give_the_same_pixels(capsys, rigs, tmp_path):
     folder = rigs["put-t"]
     want = simulator_decision(folder)

@@ -164,6 +164,9 @@ class PlanCmd:
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default: the method's, tvf-small 0.002, tvf-large 0; 0: the paper's; 0.001 is about a fifteenth of
     a misplaced block; docs/planner.md)."""
+    foresight: Literal["vf", "rigid"] | None = None
+    """TVF: what draws the search's imagined images: vf (the VF, the default) | rigid (no network: the
+    picked block moved as a rigid body on the height map; docs/planner.md)."""
     hole_fill: Literal["auto", "nearest", "background"] = "auto"
     """auto | nearest | background: how pixels no camera measured are filled. nearest: the nearest
     measured pixel's values; background: the lowest surface on the hole's rim (what a camera's occlusion
@@ -213,7 +216,7 @@ class PlanCmd:
                                keep_images=True, turns=self.turns, goal_mask=self.goal_mask,
                                mask_places=self.mask_places, centred_share=self.centred_share,
                                refine_yaw=self.refine_yaw, centre_picks=self.centre_picks,
-                               **search)  # fmt: skip
+                               foresight=self.foresight, **search)  # fmt: skip
         decision = planner.next_action(scene.color, scene.height, goal.color, goal.height)
         poses = to_base_frame(decision.as_array(), ws)
         for name, pose in (("pick", poses[0]), ("place", poses[1])):
