@@ -39,7 +39,7 @@ def to_rgbh(color: ArrayLike, height: ArrayLike) -> torch.Tensor:
             f"expected color (B,H,W,3) and height (B,H,W), got {tuple(c.shape)}, {tuple(h.shape)}"
         )
     c = (c / 255.0 - COLOR_MEAN) / COLOR_STD
-    h = (h - HEIGHT_MEAN) / HEIGHT_STD
+    h = normalised_heights(h)
     return torch.cat([c.permute(0, 3, 1, 2), h.unsqueeze(1)], dim=1).contiguous()
 
 
@@ -50,6 +50,12 @@ def from_rgbh(rgbh: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """
     color = (rgbh[:, :3] * COLOR_STD + COLOR_MEAN) * 255.0
     return color.permute(0, 2, 3, 1).contiguous(), heights_of(rgbh).contiguous()
+
+
+def normalised_heights(metres: torch.Tensor) -> torch.Tensor:
+    """Heights in metres (any shape) as the normalised RGB-H height channel (:func:`heights_of` inverts
+    it)."""
+    return (metres - HEIGHT_MEAN) / HEIGHT_STD
 
 
 def heights_of(rgbh: torch.Tensor) -> torch.Tensor:

@@ -60,6 +60,18 @@ def square_masks(centres: torch.Tensor, window: int, height: int, width: int) ->
     return (in_rows[:, None, :, None] & in_cols[:, None, None, :]).to(torch.float32)
 
 
+def moved_to_place(images: torch.Tensor, pick: torch.Tensor, place: torch.Tensor, yaws: ArrayLike
+                   ) -> torch.Tensor:  # fmt: skip
+    """``images`` (B, C, H, W) with their content turned by ``yaws`` (B,) about ``pick`` and moved to
+    ``place`` ((B, 2) int64 row, col), nearest neighbour: the picked block's motion, ``p' = R(yaw)(p -
+    pick) + place`` in (col, row). Content from outside the image is zero."""
+    pick_f = pick.to(torch.float32).cpu()
+    out_to_in = se2_output_to_input(
+        torch.as_tensor(yaws, dtype=torch.float32).cpu(), pick_f, place.to(torch.float32).cpu() - pick_f
+    )
+    return warp_images(images, out_to_in, mode="nearest")
+
+
 def encode_action(
     rgbh: torch.Tensor, pick: torch.Tensor, place: torch.Tensor, yaws: torch.Tensor, window: int = 44
 ) -> torch.Tensor:
@@ -68,11 +80,7 @@ def encode_action(
     ``pick``/``place`` (B, 2) int64 (row, col); ``yaws`` (B,) place yaw change in radians.
     """
     h, w = rgbh.shape[-2:]
-    pick_f = pick.to(torch.float32).cpu()
-    out_to_in = se2_output_to_input(
-        torch.as_tensor(yaws, dtype=torch.float32).cpu(), pick_f, place.to(torch.float32).cpu() - pick_f
-    )
-    moved = warp_images(rgbh, out_to_in, mode="nearest")
+    moved = moved_to_place(rgbh, pick, place, yaws)
     pick_mask = square_masks(pick, window, h, w).to(rgbh.dtype)
     place_mask = square_masks(place, window, h, w).to(rgbh.dtype)
     return torch.cat([rgbh, pick_mask, moved * place_mask], dim=1)

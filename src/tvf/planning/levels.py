@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from tvf.models.images import HEIGHT_CHANNEL, HEIGHT_MEAN, HEIGHT_STD, MAX_HEIGHT, heights_of
+from tvf.models.images import HEIGHT_CHANNEL, MAX_HEIGHT, heights_of, normalised_heights
 from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
 
 SNAP_TOLERANCE = 0.02
@@ -57,5 +57,5 @@ def snap_heights(
     level = nearest_level(heights, RESTING_LEVELS)
     snap = ((heights - heights_of(parents)).abs() > moved) & ((heights - level).abs() <= tolerance)
     out = images.clone()
-    out[:, HEIGHT_CHANNEL] = torch.where(snap, (level - HEIGHT_MEAN) / HEIGHT_STD, images[:, HEIGHT_CHANNEL])
+    out[:, HEIGHT_CHANNEL] = torch.where(snap, normalised_heights(level), images[:, HEIGHT_CHANNEL])
     return out

@@ -11,7 +11,7 @@ so one step of foresight can also be drawn from the height map alone:
 2. where it stood the surface drops by one block, coloured as the level it shows: the table, a base
    cell or another block (each colour read from the same image);
 3. its pixels turn by the place yaw about the pick and move to the place (the transform of the VF's
-   place mask, :func:`tvf.models.vf.encode_action`) and land on the highest surface under them.
+   place mask, :func:`tvf.models.vf.moved_to_place`) and land on the highest surface under them.
 
 Falls are not drawn: a block put half over its support lands flat at the support's level
 (``PlannerConfig.support_check``, :mod:`tvf.planning.support`, ranks such children lower; with this
@@ -26,8 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from tvf.geometry import se2_output_to_input, warp_images
-from tvf.models.images import HEIGHT_CHANNEL, HEIGHT_MEAN, HEIGHT_STD, ArrayLike, as_pixels, clamp_rgbh
+from tvf.models.images import HEIGHT_CHANNEL, ArrayLike, as_pixels, clamp_rgbh, heights_of, normalised_heights
+from tvf.models.vf import moved_to_place
 from tvf.planning.support import LIFT_RADIUS
 from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
 
@@ -43,14 +43,6 @@ LIFTABLE = BLOCK_SIZE / 2
 TABLE_LEVEL = CELL_THICKNESS / 2
 """Metres: an uncovered surface lower than this is the table; up to :data:`LIFTABLE` a base cell, above
 it another block."""
-
-
-def _metres(normalised: torch.Tensor) -> torch.Tensor:
-    return normalised * HEIGHT_STD + HEIGHT_MEAN
-
-
-def _normalised(metres: torch.Tensor) -> torch.Tensor:
-    return (metres - HEIGHT_MEAN) / HEIGHT_STD
 
 
 def picked_block(heights: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
@@ -113,21 +105,17 @@ class RigidForesight(nn.Module):
         b, _, h, w = rgbh.shape
         picks = as_pixels(pick_pixels, b, (h, w)).to(rgbh.device)
         places = as_pixels(place_pixels, b, (h, w)).to(rgbh.device)
-        heights = _metres(rgbh[:, HEIGHT_CHANNEL])
+        heights = heights_of(rgbh)
         block = picked_block(heights, picks)
         # the block leaves: its pixels drop by one block and show the level beneath
         lowered = torch.where(block, (heights - BLOCK_SIZE).clamp(min=0.0), heights)
         below = uncovered_colours(rgbh[:, :HEIGHT_CHANNEL], heights, block, lowered)
         colours = torch.where(block[:, None], below, rgbh[:, :HEIGHT_CHANNEL])
         # its pixels move as the VF's place mask does and land on the highest surface under them
-        moves = se2_output_to_input(
-            torch.as_tensor(yaws, dtype=torch.float32).reshape(b).cpu(), picks.float().cpu(),
-            (places - picks).float().cpu(),
-        )  # fmt: skip
         carried = torch.cat([rgbh[:, :HEIGHT_CHANNEL], block[:, None].to(rgbh)], dim=1)
-        moved = warp_images(carried, moves, mode="nearest")
+        moved = moved_to_place(carried, picks, places, torch.as_tensor(yaws, dtype=torch.float32).reshape(b))
         footprint = moved[:, HEIGHT_CHANNEL] > 0.5
         floor = torch.where(footprint, lowered, torch.zeros_like(lowered)).amax(dim=(-2, -1))
         landed = torch.where(footprint, floor[:, None, None] + BLOCK_SIZE, lowered)
         colours = torch.where(footprint[:, None], moved[:, :HEIGHT_CHANNEL], colours)
-        return clamp_rgbh(torch.cat([colours, _normalised(landed)[:, None]], dim=1))
+        return clamp_rgbh(torch.cat([colours, normalised_heights(landed)[:, None]], dim=1))
