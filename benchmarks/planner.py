@@ -18,8 +18,9 @@ adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+c
 ``--vfs PATH[,PATH]`` also times every ``--rules`` entry of the ``lite`` preset with each of these VFs (a run
 folder, .pt or .safetensors) in place of the shipped one, in the same run (``tvf-large/RULE/vf:PATH``):
 the side-by-side measurement a new VF is judged by; ``rigid`` there is the foresight without a network
-(``--foresight rigid``, :mod:`tvf.planning.rigid`). ``--gctns PATH[,PATH]`` does the same for other GCTNs
-(``tvf-large/RULE/gctn:PATH``, with the shipped VF), e.g. a run trained with ``--gctn-kernels c4``.
+(``--foresight rigid``, :mod:`tvf.planning.rigid`; ``rigid-falls`` with falls). ``--gctns PATH[,PATH]``
+does the same for other GCTNs (``tvf-large/RULE/gctn:PATH``, with the shipped VF), e.g. a run trained
+with ``--gctn-kernels c4``.
 
 Prints one JSON object. Usage: python benchmarks/planner.py [--presets lite,smoke] [--paper]
 [--repeats N] [--threads 2] [--task stack-pyramid] [--rules kmeans,nms+picks3] [--vfs runs/vf]
@@ -42,7 +43,7 @@ from tvf.models.pick_centre import centring_picks
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import symmetrized
 from tvf.models.vf import VisualForesight
-from tvf.planning.rigid import RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
 from tvf.planning.search import PlannerConfig, TreeSearch
 
 
@@ -114,10 +115,13 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
 
 
 def _foresight(path: str, device: torch.device):
-    """A VF run folder or file of ``--vfs``, or ``rigid``: the foresight without a network."""
+    """A VF run folder or file of ``--vfs``, or ``rigid`` / ``rigid-falls``: the foresight without a
+    network."""
     from tvf.models.checkpoint import load_trained
 
-    return RigidForesight() if path == "rigid" else load_trained(path, "vf", device)
+    if path in RIGID_FORESIGHTS:
+        return RigidForesight(falls=RIGID_FORESIGHTS[path])
+    return load_trained(path, "vf", device)
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str],

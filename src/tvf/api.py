@@ -100,8 +100,9 @@ def load_planner(
     (:mod:`tvf.planning.yaw`; default: the method's); ``centre_picks`` True moves the GCTN's picks to the
     centres of the block faces under them (:mod:`tvf.models.pick_centre`; default: the method's);
     ``foresight`` "rigid" draws the search's images by moving the picked block on the height map instead
-    of the VF (:mod:`tvf.planning.rigid`; default: the VF; the simulator ones need an episode's
-    environment: ``tvf eval``). Errors name the bad argument or file in one line."""
+    of the VF, "rigid-falls" also tips a block off where it would not rest (:mod:`tvf.planning.rigid`;
+    default: the VF; the simulator ones need an episode's environment: ``tvf eval``). Errors name the
+    bad argument or file in one line."""
     if method not in LEARNED_METHODS:
         raise TvfError(f"unknown planner {method!r}; choose one of {', '.join(LEARNED_METHODS)}")
     unknown = sorted(set(planner) - set(PLANNER_OPTIONS))

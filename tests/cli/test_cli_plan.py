@@ -148,6 +148,8 @@ def test_plan_can_foresee_without_a_network(capsys, rigs, tmp_path):
     assert code == 0, err
     record = json.loads((tmp_path / "rigid" / "decision.json").read_text())
     assert set(record) >= {"pick", "place"} and (tmp_path / "rigid" / "decision.png").is_file()
+    code, _, err = run(capsys, *args, "--vf", str(tmp_path / "vf.pt"), "--out", str(tmp_path / "both"))
+    assert code == 2 and err.strip().count("\n") == 0 and "drop --vf" in err
     code, _, err = run(capsys, *args[:-1], "simulator", "--out", str(tmp_path / "sim"))
     assert code == 2 and "simulator" in err and not (tmp_path / "sim").exists()
 

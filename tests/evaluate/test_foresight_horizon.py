@@ -194,7 +194,7 @@ def test_cli_horizon_flag(setup, tmp_path, capsys):
     assert code == 0 and "| vf | 2 | 2 |" in stdout  # the first (3-step) episode of each task: 2 windows
     doc = json.loads((out / "metrics.json").read_text())
     assert set(doc) == {"train", "unseen", "horizons"}
-    assert set(doc["horizons"]["train"]) == {"vf", "copy", "paste", "rigid"}
+    assert set(doc["horizons"]["train"]) == {"vf", "copy", "paste", "rigid", "rigid-falls"}
     assert set(doc["horizons"]["unseen"]["paste"]) == {"1", "2"}
     assert doc["horizons"]["unseen"]["paste"]["2"]["transitions"] == 2
     assert (out / "horizons.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -204,6 +204,10 @@ def test_cli_horizon_flag(setup, tmp_path, capsys):
         assert code == 2 and err.strip().count("\n") == 0
         assert f"--horizon must be at least 1 (1 = one-step metrics only), got {bad}" in err
     assert not (tmp_path / "bad").exists()
+    for wrong in (("--data", str(tmp_path / "no-data")), ("--vf", str(tmp_path / "no-vf.pt"))):
+        code, _, err = run(capsys, *args, *wrong, "--out", str(tmp_path / "bad"))
+        assert code == 2 and err.strip().count("\n") == 0 and wrong[1] in err
+    assert not (tmp_path / "bad").exists()  # a bad input leaves no empty --out folder behind
     with pytest.raises(TvfError, match="--horizon must be at least 1"):
         evaluate_foresight(ckpt, data, tmp_path / "api", horizon=0)
 

@@ -41,7 +41,7 @@ def test_latent_is_scored_like_the_vf_at_every_horizon(setup, tmp_path):
     alone = evaluate_foresight(vf, data, tmp_path / "vf", horizon=3)
     both = evaluate_foresight(vf, data, tmp_path / "both", horizon=3, latent_checkpoint=latent)
     for split in ("train", "unseen"):
-        assert list(both[split]) == ["vf", "latent", "copy", "paste", "rigid"]
+        assert list(both[split]) == ["vf", "latent", "copy", "paste", "rigid", "rigid-falls"]
         assert {m: v for m, v in both[split].items() if m != "latent"} == alone[split]  # the rest unchanged
         assert list(both["horizons"][split]["latent"]) == ["1", "2", "3"][: 3 if split == "train" else 2]
         assert both["horizons"][split]["latent"]["1"] == both[split]["latent"]

@@ -116,7 +116,8 @@ class PlannerFlags:
     simulator-first (the first actions executed, the levels below imagined by the VF from their real
     outcomes: which of the VF's imagined steps caps depth) | rigid (no network: the picked block moved
     as a rigid body on the height map, landing on what is under it; falls are not drawn;
-    docs/planner.md)."""
+    docs/planner.md) | rigid-falls (rigid, and a block whose centre is not over its support tips off
+    it)."""
 
     def spec(self, method: str, k: int | None = None, depth: int | None = None, device: str = "auto"
              ) -> PolicySpec:  # fmt: skip

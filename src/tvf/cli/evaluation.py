@@ -105,8 +105,9 @@ class EvalCmd:
 @dataclass(frozen=True)
 class EvalVfCmd:
     """Prediction quality of a visual-foresight model on a test split, beside the copy, paste and rigid
-    baselines (rigid: the picked block moved on the height map, the search's --foresight rigid) and, with
-    --latent RUN, the latent-dynamics baseline of `tvf train latent`.
+    baselines (rigid: the picked block moved on the height map, the search's --foresight rigid;
+    rigid-falls: also tipped off where it would not rest) and, with --latent RUN, the latent-dynamics
+    baseline of `tvf train latent`.
 
     Writes metrics.json, metrics.md and predictions.png (input, action, prediction, truth, error);
     with --horizon H > 1 also multi-step rollout metrics (the model fed its own predictions for 1..H
@@ -142,8 +143,7 @@ class EvalVfCmd:
         at_least_one(episodes=self.episodes)
         check_horizon(self.horizon)
         device = str(pick_device(self.device))
-        out = check_output_dir(self.out)
-        summary = evaluate_foresight(self.vf, self.data, out, self.episodes, horizon=self.horizon,
+        summary = evaluate_foresight(self.vf, self.data, self.out, self.episodes, horizon=self.horizon,
                                      tasks=load_tasks(self.task_file), device=device,
                                      latent_checkpoint=self.latent,
                                      snap_heights=self.snap_heights)  # fmt: skip

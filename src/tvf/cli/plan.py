@@ -164,9 +164,10 @@ class PlanCmd:
     """TVF: root actions scoring within TIE_BAND of the best are ties, decided by the GCTN's order
     (default: the method's, tvf-small 0.002, tvf-large 0; 0: the paper's; 0.001 is about a fifteenth of
     a misplaced block; docs/planner.md)."""
-    foresight: Literal["vf", "rigid"] | None = None
+    foresight: Literal["vf", "rigid", "rigid-falls"] | None = None
     """TVF: what draws the search's imagined images: vf (the VF, the default) | rigid (no network: the
-    picked block moved as a rigid body on the height map; docs/planner.md)."""
+    picked block moved as a rigid body on the height map; docs/planner.md) | rigid-falls (rigid, and a
+    block whose centre is not over its support tips off it)."""
     hole_fill: Literal["auto", "nearest", "background"] = "auto"
     """auto | nearest | background: how pixels no camera measured are filled. nearest: the nearest
     measured pixel's values; background: the lowest surface on the hole's rim (what a camera's occlusion

@@ -583,27 +583,31 @@ def generate(
     return report
 
 
+def _hold_one_recipe(folder: Path, path: Path, recorded, wanted, refusal: str, record: dict | None) -> None:
+    """Raise ``refusal`` when ``folder`` holds episodes (or a recipe file ``path``) made with ``recorded``,
+    not ``wanted``; else write ``record`` (None: nothing) to ``path`` if the folder names no recipe yet."""
+    if recorded != wanted and (path.exists() or episode_files(folder)):
+        raise DataError(refusal)
+    if record and not path.exists():
+        atomic_write_json(path, record)
+
+
 def check_sensor(folder: Path, sensor: str) -> None:
     """Refuse to add episodes of one sensor (or one hole filling) to a split folder of another; name a new
     folder's sensor."""
     fill = get_sensor(sensor).hole_fill
-    path = folder / SENSOR_FILE
     record = _sensor_record(folder)
     recorded, recorded_fill = record["sensor"], record["hole_fill"]
-    occupied = path.exists() or bool(episode_files(folder))
-    if recorded != sensor and occupied:
-        raise DataError(
-            f"{folder} holds demonstrations recorded through the {recorded!r} sensor; pass --sensor "
-            f"{recorded} to resume it, or choose another --out for {sensor!r}"
-        )
-    if recorded_fill != fill and occupied:
-        raise DataError(
-            f"{folder} holds {sensor!r} demonstrations whose holes were filled {recorded_fill!r} (an older "
-            f"tvf); this version fills them {fill!r}: choose another --out, or delete the folder"
-        )
-    if sensor != "ideal" and not path.exists():
-        named = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
-        atomic_write_json(path, named)
+    refusal = (f"{folder} holds demonstrations recorded through the {recorded!r} sensor; pass --sensor "
+               f"{recorded} to resume it, or choose another --out for {sensor!r}")  # fmt: skip
+    _hold_one_recipe(folder, folder / SENSOR_FILE, recorded, sensor, refusal, None)
+    refusal = (f"{folder} holds {sensor!r} demonstrations whose holes were filled {recorded_fill!r} (an "
+               f"older tvf); this version fills them {fill!r}: choose another --out, or delete the folder"
+               )  # fmt: skip
+    named = {"sensor": sensor} if fill == "nearest" else {"sensor": sensor, "hole_fill": fill}
+    _hold_one_recipe(
+        folder, folder / SENSOR_FILE, recorded_fill, fill, refusal, named if sensor != "ideal" else None
+    )
 
 
 def check_near_misses(folder: Path, near_misses: int) -> None:
@@ -617,25 +621,23 @@ def check_near_misses(folder: Path, near_misses: int) -> None:
         raise DataError(
             f"{path}: unreadable ({exc!r}); it names the folder's near misses per episode"
         ) from None
-    if recorded != near_misses and (path.exists() or episode_files(folder)):
-        raise DataError(
-            f"{folder} holds demonstrations with {recorded} near misses each; pass --near-misses {recorded} "
-            f"to resume it, or choose another --out"
-        )
-    if near_misses and not path.exists():
-        atomic_write_json(path, {"near_misses": near_misses})
+    refusal = (f"{folder} holds demonstrations with {recorded} near misses each; pass --near-misses "
+               f"{recorded} to resume it, or choose another --out")  # fmt: skip
+    _hold_one_recipe(
+        folder, path, recorded, near_misses, refusal, {"near_misses": near_misses} if near_misses else None
+    )
 
 
 def check_moves(folder: Path, moves: str | None) -> None:
     """Refuse to mix the expert's episodes and a method's own moves (or two methods') in a split folder;
     name a new folder's method."""
     recorded = moves_of(folder)
-    if recorded != moves and ((folder / MOVES_FILE).exists() or episode_files(folder)):
-        held = f"the own moves of {recorded}" if recorded else "the expert's demonstrations"
-        fix = f"pass --moves {recorded}" if recorded else "drop --moves"
-        raise DataError(f"{folder} holds {held}; {fix} to resume it, or choose another --out")
-    if moves and not (folder / MOVES_FILE).exists():
-        atomic_write_json(folder / MOVES_FILE, {"moves": moves})
+    held = f"the own moves of {recorded}" if recorded else "the expert's demonstrations"
+    fix = f"pass --moves {recorded}" if recorded else "drop --moves"
+    refusal = f"{folder} holds {held}; {fix} to resume it, or choose another --out"
+    _hold_one_recipe(
+        folder, folder / MOVES_FILE, recorded, moves, refusal, {"moves": moves} if moves else None
+    )
 
 
 def _sensor_record(folder: Path) -> dict[str, str]:

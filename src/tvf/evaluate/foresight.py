@@ -11,7 +11,8 @@ the unseen tasks separately:
 
 Baselines: ``copy`` predicts the input unchanged; ``paste`` pastes the place mask (the rotated window
 around the pick, no network) onto the input at the place pixel; ``rigid`` moves the picked block as a
-rigid body (:class:`tvf.planning.rigid.RigidForesight`, the search's ``--foresight rigid``); ``latent``,
+rigid body (:class:`tvf.planning.rigid.RigidForesight`, the search's ``--foresight rigid``), and
+``rigid-falls`` also tips it off where it would not rest (``--foresight rigid-falls``); ``latent``,
 when a latent-dynamics run is given (:class:`tvf.models.latent.LatentDynamics`), is a learned model
 scored like the VF.
 
@@ -34,18 +35,18 @@ import torch
 from tvf.data.dataset import open_dataset
 from tvf.data.samplers import VfSampler
 from tvf.errors import TvfError
-from tvf.io import atomic_write_bytes
+from tvf.io import atomic_write_bytes, check_output_dir
 from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.vf import encode_action, height_changed, paste_place_window
 from tvf.planning.levels import snap_heights
-from tvf.planning.rigid import RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
-METHODS = ("vf", "copy", "paste", "rigid")
+METHODS = ("vf", "copy", "paste", "rigid", "rigid-falls")
 """The methods of every evaluation; learned models passed as ``others`` (``latent``) come after the VF."""
-RIGID = RigidForesight()
+RIGID = {name: RigidForesight(falls=falls) for name, falls in RIGID_FORESIGHTS.items()}
 
 
 def paste_baseline(rgbh: torch.Tensor, pick, place, yaw, window: int) -> torch.Tensor:
@@ -120,17 +121,17 @@ def rollout_metrics(
     into model inputs) and compares with the real frame t+k. Horizon k thus covers every window of k
     steps inside an episode. "Changed" pixels (``changed_height_mae_mm``) are those whose true height
     differs from the rollout's start image by more than 5 mm. ``copy`` keeps the start image; ``paste``
-    pastes onto its own previous output, and ``rigid`` moves the block on its own. ``others`` ({name:
-    model}) are rolled out as the VF is. One batched model call per horizon step and model covers all
-    rollouts. Returns the per-window metrics and the first step's batch with the VF's prediction
-    (``pred``).
+    pastes onto its own previous output, and ``rigid`` / ``rigid-falls`` move the block on their own.
+    ``others`` ({name: model}) are rolled out as the VF is. One batched model call per horizon step and
+    model covers all rollouts. Returns the per-window metrics and the first step's batch with the VF's
+    prediction (``pred``).
     """
     n_steps = np.array([e.n_steps for e in sampler.episodes], np.int64)
     ep = np.repeat(np.arange(len(n_steps)), n_steps)
     start = np.concatenate([np.arange(n) for n in n_steps])
     left = n_steps[ep] - start  # steps from each window's start to the episode's end
     others = others or {}
-    methods = ("vf", *others, "copy", "paste", "rigid")
+    methods = ("vf", *others, "copy", "paste", *RIGID)
     out: PerWindow = {m: {} for m in methods}
     active = np.arange(len(ep))
     state: dict[str, torch.Tensor] = {}
@@ -155,7 +156,7 @@ def rollout_metrics(
             **{n: m.predict_rgbh(state[n], b["pick"], b["place"], b["yaw"]) for n, m in others.items()},
             "copy": origin,
             "paste": paste_baseline(state["paste"], b["pick"], b["place"], b["yaw"], model.window),
-            "rigid": RIGID.predict_rgbh(state["rigid"], b["pick"], b["place"], b["yaw"]),
+            **{n: f.predict_rgbh(state[n], b["pick"], b["place"], b["yaw"]) for n, f in RIGID.items()},
         }
         for method, pred in state.items():
             out[method][k] = transition_metrics(pred, origin, target)
@@ -225,6 +226,7 @@ def evaluate_foresight(vf_checkpoint: str | Path | None, data: str | Path, out: 
     if latent_checkpoint is not None:
         others["latent"] = OnDevice(load_trained(latent_checkpoint, "latent", device), torch.device(device))
     dataset = open_dataset(data, split="test" if (Path(data) / "test").is_dir() else None)
+    out = check_output_dir(out)  # after the inputs, so a bad one leaves no empty folder behind
     by_k, figures = foresight_summary(model, dataset, max_episodes, horizon, figure_per_task, tasks, others)
     summary: dict = {split: {m: per[1] for m, per in methods.items()} for split, methods in by_k.items()}
     if horizon > 1:

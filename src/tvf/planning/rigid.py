@@ -13,14 +13,20 @@ so one step of foresight can also be drawn from the height map alone:
 3. its pixels turn by the place yaw about the pick and move to the place (the transform of the VF's
    place mask, :func:`tvf.models.vf.moved_to_place`) and land on the highest surface under them.
 
-Falls are not drawn: a block put half over its support lands flat at the support's level
+By default falls are not drawn: a block put half over its support lands flat at the support's level
 (``PlannerConfig.support_check``, :mod:`tvf.planning.support`, ranks such children lower; with this
 foresight it cost TVF-L episodes on validation seeds). Without the image rules TVF-L with it finished
 80.0 % of the unseen test episodes against 65.6 % with the `lite` VF (docs/results.md, "A foresight
-without a network"). An option and a deviation from the paper's learned VF (docs/deviations.md P22).
+without a network"). With ``falls=True`` (``--foresight rigid-falls``) a landed block whose centre is not
+inside the support under it (the rule of :mod:`tvf.planning.support`, read on its own moved footprint)
+tips away from that support: it moves :data:`FALL_STEP` pixels at a time, at most :data:`FALL_STEPS`
+times, until it rests, and lands there. An option and a deviation from the paper's learned VF
+(docs/deviations.md P22).
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
@@ -28,7 +34,7 @@ from torch import nn
 
 from tvf.models.images import HEIGHT_CHANNEL, ArrayLike, as_pixels, clamp_rgbh, heights_of, normalised_heights
 from tvf.models.vf import moved_to_place
-from tvf.planning.support import LIFT_RADIUS
+from tvf.planning.support import DIRECTIONS, LIFT_RADIUS, SUPPORT_MARGIN, SUPPORT_TOLERANCE
 from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
 
 SAME_SURFACE = 0.01
@@ -43,6 +49,14 @@ LIFTABLE = BLOCK_SIZE / 2
 TABLE_LEVEL = CELL_THICKNESS / 2
 """Metres: an uncovered surface lower than this is the table; up to :data:`LIFTABLE` a base cell, above
 it another block."""
+FALL_STEP = 4
+"""Pixels a block that would not rest moves per step away from its support (an eighth of a block's 13)."""
+FALL_STEPS = 4
+"""Steps a falling block may take (16 px, past the edge of any support it was put half over)."""
+
+
+RIGID_FORESIGHTS = {"rigid": False, "rigid-falls": True}
+"""The ``--foresight`` names of this module, and whether each draws falls."""
 
 
 def picked_block(heights: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
@@ -89,10 +103,57 @@ def uncovered_colours(
     return shown.transpose(1, 2).reshape(colours.shape)
 
 
+def landing(footprint: torch.Tensor, surface: torch.Tensor) -> torch.Tensor:
+    """(B,) the highest height of ``surface`` (B, H, W metres) under each ``footprint`` (B, H, W bool); 0
+    where a footprint is empty."""
+    return torch.where(footprint, surface, torch.zeros_like(surface)).amax(dim=(-2, -1))
+
+
+def _pixel_grid(shape: tuple[int, int], device: torch.device) -> torch.Tensor:
+    """(H, W, 2) float (row, col) of every pixel."""
+    rows, cols = torch.meshgrid(
+        torch.arange(shape[0], device=device), torch.arange(shape[1], device=device), indexing="ij"
+    )
+    return torch.stack([rows, cols], dim=-1).float()
+
+
+def _centroid(where: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    """(B, 2) mean (row, col) of the pixels ``where`` (B, H, W); (0, 0) where none."""
+    weights = where.float()
+    return torch.einsum("bhw,hwc->bc", weights, grid) / weights.sum(dim=(-2, -1)).clamp(min=1)[:, None]
+
+
+def resting(footprint: torch.Tensor, surface: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Whether a block with ``footprint`` (B, H, W bool) landed on ``surface`` (B, H, W metres) rests:
+    the footprint's pixels within :data:`SUPPORT_TOLERANCE` of the landing level hold it, and it rests
+    when they reach :data:`SUPPORT_MARGIN` pixels past its centre in each of :data:`DIRECTIONS`
+    directions (the rule of :mod:`tvf.planning.support`, on the block's own footprint). Returns (B,)
+    bool (True for an empty footprint) and (B, 2) the unit (row, col) direction from the support's
+    centroid to the block's centre, the way it would tip (0 where it rests)."""
+    grid = _pixel_grid(tuple(surface.shape[-2:]), surface.device)
+    holds = footprint & (surface >= landing(footprint, surface)[:, None, None] - SUPPORT_TOLERANCE)
+    centre = _centroid(footprint, grid)
+    rests = torch.ones(len(surface), dtype=torch.bool, device=surface.device)
+    for angle in torch.arange(DIRECTIONS, dtype=torch.float32) * (2 * math.pi / DIRECTIONS):
+        direction = torch.stack([torch.sin(angle), torch.cos(angle)]).to(surface.device)
+        past = (grid @ direction)[None] - (centre @ direction)[:, None, None]
+        reach = torch.where(holds, past, torch.full_like(past, -math.inf)).amax(dim=(-2, -1))
+        rests &= reach >= SUPPORT_MARGIN
+    rests |= ~footprint.flatten(1).any(dim=1)
+    away = centre - _centroid(holds, grid)
+    away = away / away.norm(dim=1, keepdim=True).clamp(min=1e-6)
+    return rests, torch.where(rests[:, None], torch.zeros_like(away), away)
+
+
 class RigidForesight(nn.Module):
     """The next image after a pick-and-place as a rigid move of the picked block (the module docstring);
     the VF's :meth:`predict_rgbh` interface, so :class:`~tvf.planning.search.TreeSearch` takes it as its
-    foresight. No parameters; batched over the images."""
+    foresight. No parameters; batched over the images. ``falls`` True lets a block that would not rest
+    tip off its support (``--foresight rigid-falls``)."""
+
+    def __init__(self, falls: bool = False) -> None:
+        super().__init__()
+        self.falls = falls
 
     @torch.no_grad()
     def predict_rgbh(
@@ -113,9 +174,31 @@ class RigidForesight(nn.Module):
         colours = torch.where(block[:, None], below, rgbh[:, :HEIGHT_CHANNEL])
         # its pixels move as the VF's place mask does and land on the highest surface under them
         carried = torch.cat([rgbh[:, :HEIGHT_CHANNEL], block[:, None].to(rgbh)], dim=1)
-        moved = moved_to_place(carried, picks, places, torch.as_tensor(yaws, dtype=torch.float32).reshape(b))
+        turns = torch.as_tensor(yaws, dtype=torch.float32).reshape(b)
+        moved = moved_to_place(carried, picks, places, turns)
+        if self.falls:
+            moved = self._tipped(moved, carried, lowered, picks, places, turns)
         footprint = moved[:, HEIGHT_CHANNEL] > 0.5
-        floor = torch.where(footprint, lowered, torch.zeros_like(lowered)).amax(dim=(-2, -1))
-        landed = torch.where(footprint, floor[:, None, None] + BLOCK_SIZE, lowered)
+        landed = torch.where(footprint, landing(footprint, lowered)[:, None, None] + BLOCK_SIZE, lowered)
         colours = torch.where(footprint[:, None], moved[:, :HEIGHT_CHANNEL], colours)
         return clamp_rgbh(torch.cat([colours, normalised_heights(landed)[:, None]], dim=1))
+
+    @staticmethod
+    def _tipped(moved: torch.Tensor, carried: torch.Tensor, surface: torch.Tensor, picks: torch.Tensor,
+                places: torch.Tensor, turns: torch.Tensor) -> torch.Tensor:  # fmt: skip
+        """``moved`` (B, 4, H, W: colours and the block's mask at the place) with every block that would
+        not rest on ``surface`` moved :data:`FALL_STEP` pixels away from its support until it rests, at
+        most :data:`FALL_STEPS` times; ``carried`` is the content before the move."""
+        h, w = surface.shape[-2:]
+        offset = torch.zeros(len(places), 2, device=places.device)
+        for _ in range(FALL_STEPS):
+            rests, away = resting(moved[:, HEIGHT_CHANNEL] > 0.5, surface)
+            if bool(rests.all()):
+                break
+            offset = offset + FALL_STEP * away
+            shifted = places + offset.round().long()
+            shifted = torch.stack([shifted[:, 0].clamp(0, h - 1), shifted[:, 1].clamp(0, w - 1)], dim=1)
+            moved = torch.where(
+                rests[:, None, None, None], moved, moved_to_place(carried, picks, shifted, turns)
+            )
+        return moved

@@ -23,12 +23,14 @@ import torch
 from tvf.errors import TvfError
 from tvf.models.images import to_rgbh
 from tvf.planning.actions import refining_height
+from tvf.planning.rigid import RIGID_FORESIGHTS
 from tvf.planning.search import Node, Plan, TreeSearch, best_node, height_distance
 
-FORESIGHTS = ("vf", "simulator", "simulator-first", "rigid")
+FORESIGHTS = ("vf", "simulator", "simulator-first", *RIGID_FORESIGHTS)
 """What the search's nodes are scored from: the VF's imagined images (TVF), the simulator's outcomes,
 the simulator's outcomes of the first actions and the VF's images below them, or the picked block moved
-as a rigid body (:mod:`tvf.planning.rigid`, no network)."""
+as a rigid body (:mod:`tvf.planning.rigid`, no network; ``rigid-falls``: tipping off where it would not
+rest)."""
 SIMULATED = {"simulator": None, "simulator-first": 1}
 """The foresights that execute proposals in the simulator, and how many levels they execute (None: all)."""
 

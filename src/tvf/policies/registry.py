@@ -16,7 +16,7 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
 from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
-from tvf.planning.rigid import RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
 from tvf.planning.search import PlannerConfig, TreeSearch, widest_node
 from tvf.planning.simulated import FORESIGHTS, SIMULATED
 from tvf.policies.base import Policy
@@ -223,7 +223,11 @@ def _gctn(spec: PolicySpec, env, device: torch.device) -> Policy:
 def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     if foresight_of(spec) in SIMULATED:
         return _simulated_tvf(spec, env, device)
-    vf = RigidForesight() if foresight_of(spec) == "rigid" else load_trained(spec.vf, "vf")
+    foresight = foresight_of(spec)
+    if foresight in RIGID_FORESIGHTS:
+        vf = RigidForesight(falls=RIGID_FORESIGHTS[foresight])
+    else:
+        vf = load_trained(spec.vf, "vf")
     return TvfPolicy(load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
@@ -413,6 +417,9 @@ def _check_foresight(spec: PolicySpec, method: Method) -> None:
     if method.planner is None:
         searches = ", ".join(PLANNER_METHODS)
         raise TvfError(f"{spec.method} does not search; --foresight needs one of {searches}")
+    if spec.foresight in RIGID_FORESIGHTS and spec.vf is not None:
+        raise TvfError(f"--foresight {spec.foresight} draws the images without a network, so --vf {spec.vf} "
+                       "would be ignored; drop --vf, or use --foresight vf")  # fmt: skip
 
 
 def _check_centred_share(spec: PolicySpec) -> None:
