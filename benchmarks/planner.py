@@ -43,7 +43,7 @@ from tvf.models.pick_centre import centring_picks
 from tvf.models.presets import get_preset
 from tvf.models.symmetry import symmetrized
 from tvf.models.vf import VisualForesight
-from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, rigid_foresight
 from tvf.planning.search import PlannerConfig, TreeSearch
 
 
@@ -119,9 +119,7 @@ def _foresight(path: str, device: torch.device):
     network."""
     from tvf.models.checkpoint import load_trained
 
-    if path in RIGID_FORESIGHTS:
-        return RigidForesight(falls=RIGID_FORESIGHTS[path])
-    return load_trained(path, "vf", device)
+    return rigid_foresight(path) if path in RIGID_FORESIGHTS else load_trained(path, "vf", device)
 
 
 def bench(preset_name: str, device: torch.device, images, repeats: int, rules: list[str],

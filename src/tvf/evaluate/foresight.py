@@ -40,13 +40,13 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.images import from_rgbh, to_rgbh
 from tvf.models.vf import encode_action, height_changed, paste_place_window
 from tvf.planning.levels import snap_heights
-from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, rigid_foresight
 from tvf.tasks import BUILTIN, TaskTable
 
 PAPER_PAD = 22
 METHODS = ("vf", "copy", "paste", "rigid", "rigid-falls")
 """The methods of every evaluation; learned models passed as ``others`` (``latent``) come after the VF."""
-RIGID = {name: RigidForesight(falls=falls) for name, falls in RIGID_FORESIGHTS.items()}
+RIGID = {name: rigid_foresight(name) for name in RIGID_FORESIGHTS}
 
 
 def paste_baseline(rgbh: torch.Tensor, pick, place, yaw, window: int) -> torch.Tensor:

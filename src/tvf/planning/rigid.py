@@ -34,7 +34,7 @@ from torch import nn
 
 from tvf.models.images import HEIGHT_CHANNEL, ArrayLike, as_pixels, clamp_rgbh, heights_of, normalised_heights
 from tvf.models.vf import moved_to_place
-from tvf.planning.support import DIRECTIONS, LIFT_RADIUS, SUPPORT_MARGIN, SUPPORT_TOLERANCE
+from tvf.planning.support import DIRECTION_VECTORS, LIFT_RADIUS, held_all_round
 from tvf.tasks import BLOCK_SIZE, CELL_THICKNESS
 
 SAME_SURFACE = 0.01
@@ -57,6 +57,11 @@ FALL_STEPS = 4
 
 RIGID_FORESIGHTS = {"rigid": False, "rigid-falls": True}
 """The ``--foresight`` names of this module, and whether each draws falls."""
+
+
+def rigid_foresight(name: str) -> RigidForesight:
+    """The rigid foresight ``--foresight NAME`` names (a key of :data:`RIGID_FORESIGHTS`)."""
+    return RigidForesight(falls=RIGID_FORESIGHTS[name])
 
 
 def picked_block(heights: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
@@ -110,37 +115,32 @@ def landing(footprint: torch.Tensor, surface: torch.Tensor) -> torch.Tensor:
 
 
 def _pixel_grid(shape: tuple[int, int], device: torch.device) -> torch.Tensor:
-    """(H, W, 2) float (row, col) of every pixel."""
+    """(H * W, 2) float (row, col) of every pixel, row by row."""
     rows, cols = torch.meshgrid(
         torch.arange(shape[0], device=device), torch.arange(shape[1], device=device), indexing="ij"
     )
-    return torch.stack([rows, cols], dim=-1).float()
+    return torch.stack([rows.flatten(), cols.flatten()], dim=-1).float()
 
 
 def _centroid(where: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
-    """(B, 2) mean (row, col) of the pixels ``where`` (B, H, W); (0, 0) where none."""
+    """(B, 2) mean (row, col) of the pixels ``where`` (B, H * W) of ``grid``; (0, 0) where none."""
     weights = where.float()
-    return torch.einsum("bhw,hwc->bc", weights, grid) / weights.sum(dim=(-2, -1)).clamp(min=1)[:, None]
+    return weights @ grid / weights.sum(dim=1).clamp(min=1)[:, None]
 
 
 def resting(footprint: torch.Tensor, surface: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Whether a block with ``footprint`` (B, H, W bool) landed on ``surface`` (B, H, W metres) rests:
-    the footprint's pixels within :data:`SUPPORT_TOLERANCE` of the landing level hold it, and it rests
-    when they reach :data:`SUPPORT_MARGIN` pixels past its centre in each of :data:`DIRECTIONS`
-    directions (the rule of :mod:`tvf.planning.support`, on the block's own footprint). Returns (B,)
-    bool (True for an empty footprint) and (B, 2) the unit (row, col) direction from the support's
-    centroid to the block's centre, the way it would tip (0 where it rests)."""
+    """Whether a block with ``footprint`` (B, H, W bool) landed on ``surface`` (B, H, W metres) rests, by
+    the support check's rule (:func:`tvf.planning.support.held_all_round`) read on the block's own
+    footprint. Returns (B,) bool (True for an empty footprint) and (B, 2) the unit (row, col) direction
+    from the support's centroid to the block's centre, the way it would tip (0 where it rests)."""
     grid = _pixel_grid(tuple(surface.shape[-2:]), surface.device)
-    holds = footprint & (surface >= landing(footprint, surface)[:, None, None] - SUPPORT_TOLERANCE)
-    centre = _centroid(footprint, grid)
-    rests = torch.ones(len(surface), dtype=torch.bool, device=surface.device)
-    for angle in torch.arange(DIRECTIONS, dtype=torch.float32) * (2 * math.pi / DIRECTIONS):
-        direction = torch.stack([torch.sin(angle), torch.cos(angle)]).to(surface.device)
-        past = (grid @ direction)[None] - (centre @ direction)[:, None, None]
-        reach = torch.where(holds, past, torch.full_like(past, -math.inf)).amax(dim=(-2, -1))
-        rests &= reach >= SUPPORT_MARGIN
-    rests |= ~footprint.flatten(1).any(dim=1)
-    away = centre - _centroid(holds, grid)
+    inside = footprint.flatten(1)
+    under = torch.where(inside, surface.flatten(1), torch.tensor(-math.inf).to(surface))
+    centre = _centroid(inside, grid)
+    directions = DIRECTION_VECTORS.to(surface)
+    rests, holds = held_all_round(under, (grid @ directions)[None] - (centre @ directions)[:, None])
+    rests |= ~inside.any(dim=1)
+    away = centre - _centroid(holds & inside, grid)
     away = away / away.norm(dim=1, keepdim=True).clamp(min=1e-6)
     return rests, torch.where(rests[:, None], torch.zeros_like(away), away)
 

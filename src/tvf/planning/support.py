@@ -54,7 +54,9 @@ def footprint_offsets(radius: float = FOOTPRINT_RADIUS) -> torch.Tensor:
 OFFSETS = footprint_offsets()
 LIFT_OFFSETS = footprint_offsets(LIFT_RADIUS)
 _ANGLES = torch.arange(DIRECTIONS, dtype=torch.float32) * (2 * math.pi / DIRECTIONS)
-REACH = OFFSETS.float() @ torch.stack([torch.sin(_ANGLES), torch.cos(_ANGLES)])
+DIRECTION_VECTORS = torch.stack([torch.sin(_ANGLES), torch.cos(_ANGLES)])
+"""(2, DIRECTIONS): the unit (row, col) vectors of the directions the support must reach in."""
+REACH = OFFSETS.float() @ DIRECTION_VECTORS
 """(P, DIRECTIONS): how far each footprint pixel lies past the centre in each direction (pixels)."""
 
 
@@ -81,6 +83,18 @@ def lifted(heights: torch.Tensor, picks: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def held_all_round(under: torch.Tensor, past: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The rule of this module: a block whose P footprint pixels stand on the heights ``under`` (N, P;
+    -inf for a pixel outside its footprint) lands on the highest, the pixels within
+    :data:`SUPPORT_TOLERANCE` of that level hold it, and it rests when they reach :data:`SUPPORT_MARGIN`
+    pixels past its centre in every direction, ``past`` (N or 1, P, DIRECTIONS) saying how far each pixel
+    lies past the centre in each. Returns (N,) whether it rests and (N, P) the pixels that hold it."""
+    landing = under.max(dim=1, keepdim=True).values
+    holds = under >= landing - SUPPORT_TOLERANCE
+    reach = torch.where(holds[:, :, None], past, torch.tensor(-math.inf).to(past))
+    return (reach.max(dim=1).values >= SUPPORT_MARGIN).all(dim=1), holds
+
+
 def rests(heights: torch.Tensor, picks: torch.Tensor, places: torch.Tensor) -> torch.Tensor:
     """(N,) bool: the block picked at ``picks`` (N, 2 pixel rows, cols) and put at ``places`` would rest
     there, from the parent scenes' height maps ``heights`` (N, H, W, metres)."""
@@ -89,7 +103,4 @@ def rests(heights: torch.Tensor, picks: torch.Tensor, places: torch.Tensor) -> t
                          f"{tuple(picks.shape)}, {tuple(places.shape)}")  # fmt: skip
     picks, places = picks.long().to(heights.device), places.long().to(heights.device)
     under = _gather(lifted(heights, picks), places)
-    landing = under.max(dim=1, keepdim=True).values
-    holds = under >= landing - SUPPORT_TOLERANCE
-    reach = torch.where(holds[:, :, None], REACH.to(under)[None], torch.tensor(-math.inf).to(under))
-    return (reach.max(dim=1).values >= SUPPORT_MARGIN).all(dim=1)
+    return held_all_round(under, REACH.to(under)[None])[0]

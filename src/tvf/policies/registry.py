@@ -16,7 +16,7 @@ from tvf.models.checkpoint import load_trained
 from tvf.models.goal_mask import CENTRED_SHARE, CENTRING_RULES, PLACE_RULES, goal_masked
 from tvf.models.pick_centre import centring_picks
 from tvf.models.symmetry import check_turns, symmetrized
-from tvf.planning.rigid import RIGID_FORESIGHTS, RigidForesight
+from tvf.planning.rigid import RIGID_FORESIGHTS, rigid_foresight
 from tvf.planning.search import PlannerConfig, TreeSearch, widest_node
 from tvf.planning.simulated import FORESIGHTS, SIMULATED
 from tvf.policies.base import Policy
@@ -224,10 +224,7 @@ def _tvf(spec: PolicySpec, env, device: torch.device) -> Policy:
     if foresight_of(spec) in SIMULATED:
         return _simulated_tvf(spec, env, device)
     foresight = foresight_of(spec)
-    if foresight in RIGID_FORESIGHTS:
-        vf = RigidForesight(falls=RIGID_FORESIGHTS[foresight])
-    else:
-        vf = load_trained(spec.vf, "vf")
+    vf = rigid_foresight(foresight) if foresight in RIGID_FORESIGHTS else load_trained(spec.vf, "vf")
     return TvfPolicy(load_gctn(spec), vf, planner_of(spec), device, spec.method, refine_yaw_of(spec))
 
 
