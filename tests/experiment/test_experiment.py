@@ -71,6 +71,19 @@ def test_rerun_resumes_without_redoing_work(experiment):
     assert len(commands) == 2
 
 
+def test_a_foresight_variant_adds_its_own_evaluation_and_column(experiment):
+    cfg, _ = experiment
+    variant = ExperimentConfig(**{**cfg.__dict__, "methods": "tvf-large+rigid", "stages": "eval,report"})
+    report = run_experiment(variant).read_text()
+    summary = json.loads((cfg.out / "eval" / "tvf-large+rigid" / "summary.json").read_text())
+    assert summary["method"] == "tvf-large" and summary["foresight"] == "rigid"
+    assert summary["average"]["episodes"] == 1
+    header = next(line for line in report.splitlines() if line.startswith("| task |"))
+    assert header.index("| TVF-L |") < header.index("| TVF-L, rigid foresight |")  # beside its method
+    recorded = json.loads((cfg.out / "experiment.json").read_text())
+    assert recorded["methods"] == "gctn,tvf-large,tvf-large+rigid"
+
+
 def test_other_settings_in_the_same_folder_are_refused(experiment):
     cfg, _ = experiment
     other = ExperimentConfig(**{**cfg.__dict__, "episodes": 3, "stages": "report"})
@@ -83,6 +96,10 @@ def test_bad_stage_method_and_preset_are_one_line_errors(tmp_path):
         run_experiment(ExperimentConfig(out=tmp_path, stages="data,fly"))
     with pytest.raises(TvfError, match="unknown method"):
         run_experiment(ExperimentConfig(out=tmp_path, methods="gctn,magic"))
+    with pytest.raises(TvfError, match="gctn does not search, so it takes no foresight"):
+        run_experiment(ExperimentConfig(out=tmp_path, methods="gctn+rigid"))
+    with pytest.raises(TvfError, match="--methods names no method"):
+        run_experiment(ExperimentConfig(out=tmp_path, methods=" , "))
     with pytest.raises(TvfError, match="unknown preset"):
         run_experiment(ExperimentConfig(out=tmp_path, preset="huge"))
     with pytest.raises(TvfError, match="missing"):

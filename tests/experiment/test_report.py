@@ -57,6 +57,9 @@ def md_row(md: str, first_cell: str) -> list[str]:
 
 def test_method_order():
     assert ordered_methods(fake_summaries()) == ["oracle", "gctn", "tvf-large", "mine"]
+    names = ("tvf-large-paper+rigid", "mine", "tvf-large-paper", "tvf-small+rigid", "gctn")
+    ordered = ["gctn", "tvf-small+rigid", "tvf-large-paper", "tvf-large-paper+rigid", "mine"]
+    assert ordered_methods({m: {} for m in names}) == ordered  # each method's variants after it
 
 
 def test_markdown_rows_cells_and_bold():

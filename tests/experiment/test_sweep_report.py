@@ -78,6 +78,9 @@ def test_a_paper_rules_row_shares_the_papers_number_colour_and_cell():
     rows = method_styles(["tvf-small", "tvf-small-paper", "tvf-small-no-image-rules"])  # a third variant
     assert rows["tvf-small-no-image-rules"] == ("C0", "-.", "^")
     assert paper_unseen(10, "tvf-small-no-image-rules") == paper_unseen(10, "tvf-small")
+    assert paper_unseen(1000, "tvf-large-paper+rigid") == 0.856  # a foresight variant: its method's number
+    rigid = method_styles(["tvf-large-paper", "tvf-large-paper+rigid"])
+    assert rigid["tvf-large-paper+rigid"] == ("C0", ":", "s")  # its method's colour, a line of its own
     both = paper_task_cell(10, "put-plane", ["gctn", "gctn-paper", "tvf-large-paper"])
     assert both == "GCTN 86.7%, TVF-L 100.0%"  # each paper number once
 

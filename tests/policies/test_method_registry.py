@@ -15,6 +15,7 @@ from tvf.policies import (
     Policy,
     PolicySpec,
     centre_picks_of,
+    check_variant,
     get_method,
     goal_mask_of,
     label,
@@ -23,6 +24,8 @@ from tvf.policies import (
     planner_of,
     policy_for,
     refine_yaw_of,
+    split_variant,
+    variant_order,
 )
 from tvf.sim.factory import sim_env
 from tvf.tasks import get_task
@@ -219,6 +222,31 @@ def test_labels_and_unknown_methods():
     assert label("my-method") == "my-method"
     with pytest.raises(TvfError, match="choose one of oracle, gctn, tvf-small, tvf-large, gctn-paper, "):
         get_method("magic")
+
+
+def test_foresight_variants_name_a_search_method_and_a_foresight():
+    assert split_variant("tvf-large-paper+rigid") == ("tvf-large-paper", "rigid")
+    assert split_variant("tvf-large") == ("tvf-large", None)
+    assert label("tvf-large-paper+rigid") == "TVF-L, paper rules, rigid foresight"
+    assert paper_method("tvf-small-paper+rigid-falls") == "tvf-small"  # the paper's number of its method
+    for name in ("tvf-large+rigid", "tvf-small-no-image-rules+simulator", "gctn"):
+        check_variant(name)
+    # each method's variants follow it, the VF's own first, before the next method
+    names = ["tvf-small-paper", "tvf-large+rigid", "tvf-large", "gctn", "tvf-large+rigid-falls"]
+    assert sorted(names, key=variant_order) == [
+        "gctn", "tvf-large", "tvf-large+rigid", "tvf-large+rigid-falls", "tvf-small-paper",
+    ]  # fmt: skip
+    assert variant_order("mine") is None and variant_order("tvf-large+magic") is None
+    for name, message in (
+        ("gctn-paper+rigid", "gctn-paper does not search, so it takes no foresight"),
+        ("tvf-large+magic", "unknown foresight 'magic' in tvf-large\\+magic; choose one of simulator, "),
+        ("tvf-large+vf", "the VF is the method's own: write tvf-large"),
+        ("magic+rigid", "unknown method 'magic'"),
+    ):
+        with pytest.raises(TvfError, match=message):
+            check_variant(name)
+    with pytest.raises(TvfError, match="here: --method tvf-large --foresight rigid"):
+        get_method("tvf-large+rigid")  # tvf eval takes the foresight as a flag
 
 
 def test_learned_policies_act_from_images_alone():

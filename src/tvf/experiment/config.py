@@ -55,7 +55,9 @@ class ExperimentConfig:
     methods: str = "oracle,gctn,tvf-small,tvf-large"
     """Methods evaluated, comma-separated (the registry's; gctn-paper, tvf-small-paper and tvf-large-paper
     run the paper's rules, for a row beside the paper's; the -no-image-rules three ours without the
-    rules that read the height maps)."""
+    rules that read the height maps). METHOD+FORESIGHT runs a search method with another foresight than
+    its VF, into its own folder: tvf-large-paper+rigid is tvf eval's --method tvf-large-paper --foresight
+    rigid."""
     episodes: int = 20
     """Closed-loop episodes per task and method (the paper: 20)."""
     seed: int = 0
@@ -145,14 +147,13 @@ class ExperimentConfig:
         return Path(self.data) if self.data is not None else self.out / "data"
 
     def method_list(self) -> list[str]:
-        from tvf.policies import METHODS  # lazy, as above
+        from tvf.policies import METHODS, check_variant  # lazy, as above
 
         names = [m.strip() for m in self.methods.split(",") if m.strip()]
-        bad = [m for m in names if m not in METHODS]  # the method registry
-        if bad or not names:
-            raise TvfError(
-                f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
-            )
+        if not names:
+            raise TvfError(f"--methods names no method; choose from {', '.join(METHODS)}")
+        for name in names:  # the method registry, or a foresight variant of a search method
+            check_variant(name)
         return names
 
     def stage_list(self) -> list[str]:

@@ -34,7 +34,8 @@ from tvf.experiment.report import evaluated_methods, plural, write_report
 from tvf.experiment.shipping import group_results, ship_model, ship_weights, write_model_card
 from tvf.io import atomic_write_json, check_output_dir, read_json
 from tvf.parallel import check_backend, import_ray
-from tvf.policies import PolicySpec, label, make_policy
+from tvf.planning.rigid import RIGID_FORESIGHTS
+from tvf.policies import PolicySpec, label, make_policy, split_variant
 from tvf.sim.factory import sim_env
 from tvf.train.registry import MODELS, RECIPE_FIELDS, vf_tune, with_recipe
 from tvf.train.trainer import TrainConfig, check_config, train
@@ -141,8 +142,11 @@ def stage_eval_vf(cfg: ExperimentConfig) -> None:
 
 
 def method_spec(cfg: ExperimentConfig, method: str) -> PolicySpec:
-    """The experiment's own models under ``method``."""
-    return PolicySpec(method, str(model_dir(cfg, "gctn")), str(model_dir(cfg, "vf")), device=cfg.device)
+    """The experiment's own models under ``method`` (``METHOD+FORESIGHT``: its search scored by that
+    foresight; a rigid one reads no VF)."""
+    base, foresight = split_variant(method)
+    vf = None if foresight in RIGID_FORESIGHTS else str(model_dir(cfg, "vf"))
+    return PolicySpec(base, str(model_dir(cfg, "gctn")), vf, device=cfg.device, foresight=foresight)
 
 
 def stage_eval(cfg: ExperimentConfig) -> None:

@@ -20,12 +20,9 @@ from matplotlib.figure import Figure
 from tvf import __version__
 from tvf.evaluate.closed_loop import wilson
 from tvf.io import atomic_write_bytes
-from tvf.policies import METHODS, label, paper_method
+from tvf.policies import label, paper_method, variant_order
 from tvf.seeds import seed_range
 from tvf.tasks import resolve_tasks
-
-METHOD_ORDER = tuple(METHODS)
-"""Column order (the method registry's); other method names follow in the order given."""
 
 PAPER_UNSEEN = {
     1: {"gctn": 0.013, "tvf-small": 0.017, "tvf-large": 0.029},
@@ -76,9 +73,10 @@ Row = tuple[str, str, list[str]]
 
 
 def ordered_methods(summaries: dict[str, dict]) -> list[str]:
-    """Methods in report order: the known ones first (oracle, gctn, tvf-small, tvf-large), then the rest."""
-    known = [m for m in METHOD_ORDER if m in summaries]
-    return known + [m for m in summaries if m not in METHOD_ORDER]
+    """Methods in report order: the known ones first (oracle, gctn, tvf-small, tvf-large, ..., each
+    method's foresight variants after it), then the rest in the order given."""
+    known = sorted((m for m in summaries if variant_order(m) is not None), key=variant_order)
+    return known + [m for m in summaries if variant_order(m) is None]
 
 
 def evaluated_methods(eval_dir: Path) -> list[str]:

@@ -12,6 +12,7 @@ from tvf.policies.registry import (
     centred_share_of,
     check_policy,
     check_spec,
+    check_variant,
     foresight_of,
     forget_cached_policies,
     get_method,
@@ -25,13 +26,16 @@ from tvf.policies.registry import (
     policy_for,
     refine_yaw_of,
     resolved_settings,
+    split_variant,
     turns_of,
+    variant_order,
 )
 
 __all__ = [
     "LEARNED_METHODS", "METHODS", "PLANNER_METHODS", "BatchPolicy", "GctnPolicy", "Method", "Observation",
     "OraclePolicy", "Policy", "PolicySpec", "SimulatedTvfPolicy", "TvfPolicy", "act_all", "centre_picks_of",
-    "centred_share_of", "check_policy", "check_spec", "foresight_of", "forget_cached_policies", "get_method",
-    "goal_mask_of", "label", "make_policy", "mask_places_of", "needs_env", "paper_method", "planner_of",
-    "policy_for", "refine_yaw_of", "resolved_settings", "turns_of",
+    "centred_share_of", "check_policy", "check_spec", "check_variant", "foresight_of",
+    "forget_cached_policies", "get_method", "goal_mask_of", "label", "make_policy", "mask_places_of",
+    "needs_env", "paper_method", "planner_of", "policy_for", "refine_yaw_of", "resolved_settings",
+    "split_variant", "turns_of", "variant_order",
 ]  # fmt: skip

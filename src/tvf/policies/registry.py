@@ -328,18 +328,67 @@ _CACHE: dict[PolicySpec, Policy] = {}
 def get_method(name: str) -> Method:
     """The registry entry of ``name``; an unknown name is a one-line error listing the methods."""
     if name not in METHODS:
-        raise TvfError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
+        hint = ""
+        if VARIANT_SEP in name:
+            base, foresight = split_variant(name)
+            hint = (
+                f" (METHOD{VARIANT_SEP}FORESIGHT names are for tvf experiment --methods; here: "
+                f"--method {base} --foresight {foresight})"
+            )
+        raise TvfError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}{hint}")
     return METHODS[name]
 
 
+VARIANT_SEP = "+"
+"""Joins a search method and a foresight in an experiment's method list, ``tvf-large-paper+rigid``: the
+method with its search scored by that foresight instead of the VF (``--foresight``), evaluated into its
+own folder beside the method's, so one experiment or sweep holds both rows."""
+
+
+def split_variant(name: str) -> tuple[str, str | None]:
+    """``"tvf-large-paper+rigid"`` -> ``("tvf-large-paper", "rigid")``; a plain name -> ``(name, None)``."""
+    base, sep, foresight = name.partition(VARIANT_SEP)
+    return base, (foresight if sep else None)
+
+
+def check_variant(name: str) -> None:
+    """A method name or a ``METHOD+FORESIGHT`` variant that can run, else a one-line error naming the fix."""
+    base, foresight = split_variant(name)
+    get_method(base)
+    if foresight is None:
+        return
+    if base not in PLANNER_METHODS:
+        raise TvfError(f"{base} does not search, so it takes no foresight ({name}); a foresight variant "
+                       f"needs one of {', '.join(PLANNER_METHODS)}")  # fmt: skip
+    others = [f for f in FORESIGHTS if f != "vf"]
+    if foresight not in others:
+        own = f" (the VF is the method's own: write {base})" if foresight == "vf" else ""
+        raise TvfError(f"unknown foresight {foresight!r} in {name}; choose one of {', '.join(others)}{own}")
+
+
 def paper_method(name: str) -> str | None:
-    """The paper's method that ``name`` runs (for its published numbers); None for others and unknowns."""
-    return METHODS[name].paper if name in METHODS else None
+    """The paper's method that ``name`` (or a foresight variant of it) runs, for its published numbers;
+    None for others and unknowns."""
+    base, _ = split_variant(name)
+    return METHODS[base].paper if base in METHODS else None
 
 
 def label(name: str) -> str:
-    """The method's display name (unknown names are shown as they are)."""
-    return METHODS[name].label if name in METHODS else name
+    """The method's display name, a foresight variant's with its foresight (unknown names are shown as
+    they are)."""
+    base, foresight = split_variant(name)
+    if base not in METHODS:
+        return name
+    return METHODS[base].label + (f", {foresight} foresight" if foresight else "")
+
+
+def variant_order(name: str) -> tuple[int, int] | None:
+    """Where ``name`` goes in tables: its method's place in the registry, then the foresight's (the VF's
+    own first); None for names the registry does not know."""
+    base, foresight = split_variant(name)
+    if base not in METHODS or (foresight is not None and foresight not in FORESIGHTS):
+        return None
+    return list(METHODS).index(base), FORESIGHTS.index(foresight or "vf")
 
 
 def planner_of(spec: PolicySpec) -> PlannerConfig:
