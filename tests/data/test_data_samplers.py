@@ -13,7 +13,7 @@ from torch.utils.data import DataLoader
 from tvf.data import GctnSampler, Se2, VfSampler, open_dataset, sample_se2, transform_pixels, warp
 from tvf.data.augment import IMAGE_CENTER, inside, transform_points
 from tvf.data.format import world_to_subpixel
-from tvf.data.samplers import VfRolloutSampler
+from tvf.data.samplers import VfRolloutSampler, expert_reach
 from tvf.geometry import bin_to_yaw, rotate_pixels, world_to_pixel, wrap_symmetric
 from tvf.tasks import BLOCK_SYMMETRY
 
@@ -96,10 +96,11 @@ def test_unaugmented_samples_are_the_stored_data(synthetic):
 def test_draw_follows_the_reference(synthetic):
     rng = np.random.default_rng(0)
     gctn = GctnSampler(synthetic)
-    ep, step, identity = gctn.draw(20000, rng)
+    ep, step, goal = gctn.draw(20000, rng)
     tasks = np.array([synthetic[e].task for e in ep])
     assert abs(np.mean(tasks == "stack-tower") - 0.5) < 0.02  # tasks uniformly, not episodes
-    assert not any(synthetic[e].random[s] for e, s in zip(ep, step, strict=True)) and not identity.any()
+    assert not any(synthetic[e].random[s] for e, s in zip(ep, step, strict=True))
+    assert (goal == [synthetic[e].n_steps for e in ep]).all()  # the last frame is every goal
     vf = VfSampler(synthetic)
     ep, step, identity = vf.draw(20000, rng)
     assert abs(identity.mean() - 1 / 8) < 0.01
@@ -216,3 +217,31 @@ def test_augmented_actions_still_pick_the_block_and_reach_its_pose(real_root):
             assert abs(err) < math.radians(10)
     assert max(errors) < 2.0, max(errors)  # pixel rounding and where the block really settled
     assert max(wrong_turn_errors) > 2.0  # the check can tell a sign error apart
+
+
+def test_expert_reach_stops_before_a_random_step():
+    episode = make_episode("stack-stair", 0, 6, rng_seed=0)  # steps 0 and 3 are random
+    assert expert_reach(episode).tolist() == [3, 3, 3, 6, 6, 6]
+
+
+def test_hindsight_goals_are_later_frames_the_expert_reaches(synthetic):
+    reference = GctnSampler(synthetic).draw(4000, np.random.default_rng(1))
+    sampler = GctnSampler(synthetic, hindsight=0.5)
+    ep, step, goal = sampler.draw(4000, np.random.default_rng(1))
+    assert np.array_equal(ep, reference[0]) and np.array_equal(step, reference[1])  # the same steps drawn
+    last = np.array([synthetic[e].n_steps for e in ep])
+    reach = np.array([expert_reach(synthetic[e])[s] for e, s in zip(ep, step, strict=True)])
+    assert ((goal > step) & ((goal <= reach) | (goal == last))).all()  # never past a random step
+    relabelled = goal != last
+    assert 0.2 < relabelled.mean() < 0.5  # half are drawn again; some of those land on the last frame
+    pairs = {(int(s), int(g)) for s, g in zip(step[relabelled], goal[relabelled], strict=True)}
+    assert pairs == {(1, 2), (1, 3), (2, 3)}  # every partial structure before the random step 3
+    sampler.augment = False
+    batch = sampler.sample(64, np.random.default_rng(2))
+    for k in range(64):
+        e, f = int(batch["episode"][k]), int(batch["goal_frame"][k])
+        assert np.array_equal(batch["goal_height"][k].numpy(), synthetic[e].height[f])
+    fixed = sampler.item(0)  # validation samples keep the last frame
+    assert int(fixed["goal_frame"][0]) == synthetic[int(fixed["episode"][0])].n_steps
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        GctnSampler(synthetic, hindsight=-0.1)

@@ -286,3 +286,25 @@ def test_c4_kernels_are_a_gctn_flag_recorded_in_the_preset(data_root, tmp_path):
         vf_job(replace(cfg, out=tmp_path / "vf"))
     with pytest.raises(TvfError, match="gctn_kernels must be one of plain, c4"):
         gctn_job(replace(cfg, out=tmp_path / "bad", gctn_kernels="c8"))
+
+
+def test_hindsight_goals_are_a_gctn_flag_recorded_and_matched_on_resume(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "hs", steps=2, hindsight=0.5)
+    job = gctn_job(cfg)
+    batches = [job.train_batch(np.random.default_rng(k), None) for k in range(8)]
+    frames = torch.cat([b["goal_frame"] for b in batches])
+    steps = torch.cat([b["step"] for b in batches])
+    assert (frames > steps).all()
+    train(cfg, job)
+    saved = json.loads((tmp_path / "hs" / "config.json").read_text())
+    assert saved["hindsight"] == 0.5
+    plain = config(data_root, tmp_path / "plain", steps=2)
+    train(plain, gctn_job(plain))
+    assert "hindsight" not in json.loads((tmp_path / "plain" / "config.json").read_text())
+    other = replace(plain, resume=True, steps=3, hindsight=0.25)
+    with pytest.raises(RunError, match="hindsight"):  # a resume must draw its goals as the run did
+        train(other, gctn_job(other))
+    with pytest.raises(TrainError, match="--hindsight is a GCTN flag"):
+        vf_job(replace(cfg, out=tmp_path / "vf"))
+    with pytest.raises(TrainError, match="between 0 and 1"):
+        gctn_job(replace(cfg, out=tmp_path / "bad", hindsight=1.5))

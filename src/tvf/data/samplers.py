@@ -7,7 +7,9 @@ it uniformly, then a step uniformly. ``sample(batch_size, rng)`` draws one batch
 gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the same for many steps.
 
 * :class:`GctnSampler`: (current, goal = last frame, pick pixel, place pixel, rotation bin) from the
-  oracle steps only (states reached after a random action are included).
+  oracle steps only (states reached after a random action are included); with ``hindsight`` > 0 that
+  share of the samples takes a later frame of the same demonstration as its goal instead (a partial
+  structure the expert's next steps reach, :meth:`GctnSampler.draw`).
 * :class:`VfSampler`: (current, action, next) from every step, oracle and random, and with
   probability 1/8 an identity sample (place = pick, no turn, next = current).
 * :class:`VfRolloutSampler`: H consecutive steps of one episode (the frames ``step .. step + H`` and the
@@ -77,14 +79,14 @@ class _Sampler(IterableDataset):
     def eligible_steps(self, episode: Episode) -> np.ndarray:
         raise NotImplementedError
 
-    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
+    def _points(self, ep: np.ndarray, step: np.ndarray, drawn: np.ndarray) -> np.ndarray:
         """The key sub-pixel points (B, 2, 2) of each sample (pick, place) that the augmentation moves."""
         raise NotImplementedError
 
     def _build(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
+        self, ep: np.ndarray, step: np.ndarray, drawn: np.ndarray, se2: Se2, pixels: np.ndarray
     ) -> dict[str, torch.Tensor]:
-        """The samples of (ep, step, identity) warped by ``se2``, with their moved key ``pixels``."""
+        """The samples of (ep, step, drawn) warped by ``se2``, with their moved key ``pixels``."""
         raise NotImplementedError
 
     # ---- drawing
@@ -93,8 +95,9 @@ class _Sampler(IterableDataset):
         return sum(len(s) for s in self._steps)
 
     def draw(self, batch_size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(episode, step, identity) per sample: a task uniformly, an episode of it uniformly, an eligible
-        step uniformly; ``identity`` marks identity samples (VF only)."""
+        """(episode, step, third) per sample: a task uniformly, an episode of it uniformly, an eligible
+        step uniformly; the third array is the subclass's own per-sample draw (:meth:`undrawn` here: the
+        VF's identity flags, the GCTN's goal frames)."""
         ep = np.empty(batch_size, np.int64)
         step = np.empty(batch_size, np.int64)
         for k in range(batch_size):
@@ -102,7 +105,11 @@ class _Sampler(IterableDataset):
             ep[k] = ids[rng.integers(len(ids))]
             steps = self._steps[ep[k]]
             step[k] = steps[rng.integers(len(steps))]
-        return ep, step, np.zeros(batch_size, bool)
+        return ep, step, self.undrawn(ep, step)
+
+    def undrawn(self, ep: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """The third array of :meth:`draw` for fixed samples (:meth:`batch`): no identity samples."""
+        return np.zeros(len(ep), bool)
 
     def sample(
         self, batch_size: int | None = None, rng: np.random.Generator | None = None, part: slice | None = None
@@ -111,18 +118,18 @@ class _Sampler(IterableDataset):
         samples of it are built (bit-identical to slicing the whole batch: every draw and transform of
         the batch is made first, the images only for ``part``; a training process's share)."""
         rng = rng if rng is not None else np.random.default_rng(self.seed)
-        ep, step, identity = self.draw(batch_size or self.batch_size, rng)
-        return self._made(ep, step, identity, rng, self.augment, part)
+        ep, step, drawn = self.draw(batch_size or self.batch_size, rng)
+        return self._made(ep, step, drawn, rng, self.augment, part)
 
     def _made(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, rng: np.random.Generator,
+        self, ep: np.ndarray, step: np.ndarray, drawn: np.ndarray, rng: np.random.Generator,
         augment: bool, part: slice | None = None,
     ) -> dict[str, torch.Tensor]:  # fmt: skip
-        se2, pixels = self._transform(self._points(ep, step, identity), rng, augment)
+        se2, pixels = self._transform(self._points(ep, step, drawn), rng, augment)
         if part is not None:
-            ep, step, identity, pixels = ep[part], step[part], identity[part], pixels[part]
+            ep, step, drawn, pixels = ep[part], step[part], drawn[part], pixels[part]
             se2 = Se2(se2.yaw[part], se2.shift[part])
-        return self._build(ep, step, identity, se2, pixels)
+        return self._build(ep, step, drawn, se2, pixels)
 
     def item(self, index: int) -> dict[str, torch.Tensor]:
         """The ``index``-th (episode, step) sample in a fixed order, without augmentation (batch of 1)."""
@@ -137,7 +144,7 @@ class _Sampler(IterableDataset):
         augmentation, no identity samples (``ep`` indexes ``self.episodes``)."""
         ep = np.asarray(ep, np.int64)
         step = np.asarray(step, np.int64)
-        return self._made(ep, step, np.zeros(len(ep), bool), np.random.default_rng(0), False)
+        return self._made(ep, step, self.undrawn(ep, step), np.random.default_rng(0), False)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         """Endless batches; each DataLoader worker draws from its own stream (seed, worker id)."""
@@ -192,22 +199,56 @@ class _Sampler(IterableDataset):
 
 
 class GctnSampler(_Sampler):
-    """GCTN samples: current and goal images, pick and place pixels, rotation bin (oracle steps only)."""
+    """GCTN samples: current and goal images, pick and place pixels, rotation bin (oracle steps only).
+
+    The goal is the demonstration's last frame (the reference's), or with probability ``hindsight`` a
+    later frame that the expert's next steps reach with no random step between (hindsight goals: the
+    partial structures on the way, so the goals are many shapes, not one per task; the label stays the
+    expert's action, which is the first of the steps that reach that frame).
+    """
 
     margin = 0.0
+
+    def __init__(
+        self,
+        episodes: Sequence[Episode],
+        batch_size: int = 1,
+        augment: bool = True,
+        seed: int = 0,
+        n_rotations: int = 36,
+        hindsight: float = 0.0,
+    ) -> None:
+        if not 0.0 <= hindsight <= 1.0:
+            raise ValueError(f"hindsight is a share of the samples, between 0 and 1; got {hindsight}")
+        super().__init__(episodes, batch_size, augment, seed, n_rotations)
+        self.hindsight = hindsight
+        self._reach = [expert_reach(e) for e in self.episodes]
 
     def eligible_steps(self, episode: Episode) -> np.ndarray:
         return np.flatnonzero(~episode.random)
 
-    def _points(self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray) -> np.ndarray:
+    def undrawn(self, ep: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """Fixed samples take the last frame as their goal."""
+        return np.array([self.episodes[e].n_steps for e in ep], np.int64)
+
+    def draw(self, batch_size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(episode, step, goal frame) per sample; without hindsight the rng is drawn as the reference's."""
+        ep, step, goal = super().draw(batch_size, rng)
+        if self.hindsight > 0:
+            relabel = rng.random(batch_size) < self.hindsight
+            reach = np.array([self._reach[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
+            later = step + 1 + (rng.random(batch_size) * (reach - step)).astype(np.int64)
+            goal = np.where(relabel, np.minimum(later, reach), goal)
+        return ep, step, goal
+
+    def _points(self, ep: np.ndarray, step: np.ndarray, goal: np.ndarray) -> np.ndarray:
         return np.stack(
             [np.stack([self._pick_sub[e][s], self._place_sub[e][s]]) for e, s in zip(ep, step, strict=True)]
         )
 
     def _build(
-        self, ep: np.ndarray, step: np.ndarray, identity: np.ndarray, se2: Se2, pixels: np.ndarray
+        self, ep: np.ndarray, step: np.ndarray, goal: np.ndarray, se2: Se2, pixels: np.ndarray
     ) -> dict[str, torch.Tensor]:
-        goal = np.array([self.episodes[e].n_steps for e in ep])
         images = warp(self._stack_images(self._frames(ep, step), self._frames(ep, goal)), se2)
         bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
         return {
@@ -215,8 +256,21 @@ class GctnSampler(_Sampler):
             "pick": torch.from_numpy(pixels[:, 0]),
             "place": torch.from_numpy(pixels[:, 1]),
             "rot_bin": torch.from_numpy(bins),
+            "goal_frame": torch.from_numpy(goal.astype(np.int64)),
             **self._meta(ep, step, se2),
         }
+
+
+def expert_reach(episode: Episode) -> np.ndarray:
+    """For every step, the last frame the expert's steps from it reach before a random step: the next
+    random step's index (the frame just before that step), or the last frame when none follows."""
+    reach = np.full(episode.n_steps, episode.n_steps, np.int64)
+    nxt = episode.n_steps
+    for s in range(episode.n_steps - 1, -1, -1):
+        reach[s] = nxt
+        if episode.random[s]:
+            nxt = s
+    return reach
 
 
 class VfSampler(_Sampler):

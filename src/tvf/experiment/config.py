@@ -96,6 +96,10 @@ class ExperimentConfig:
     """GCTN kernels: plain (the paper's) | c4 (tied over quarter turns: the GCTN's maps exactly
     equivariant to quarter turns of the scene, at the plain cost; docs/models.md); default: the preset's
     (plain)."""
+    gctn_hindsight: float = 0.0
+    """GCTN: the share of training samples whose goal is a later frame of the same demonstration, a
+    partial structure on the way, instead of its last frame (tvf train gctn --hindsight;
+    docs/training.md, "Hindsight goals"); 0: the paper's."""
     vf_tune: bool = False
     """After the VF's recipe, fine-tune it with the preset's second phase (lite: 3000 steps from its
     weights, lr 2e-4 cosine, three-step rollout loss, changed pixels weighted 21 times, the local head;

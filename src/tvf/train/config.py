@@ -57,6 +57,11 @@ class TrainConfig:
     """GCTN only: plain (the paper's) | c4: every kernel of its FCNs tied over quarter turns, so its maps
     are exactly equivariant to quarter turns of the scene by construction, at the plain FCNs' cost (a
     quarter of the free weights; tvf.models.c4, docs/models.md); default: the preset's (plain)."""
+    hindsight: float = 0.0
+    """GCTN only: the share of training samples whose goal is a later frame of the same demonstration (a
+    partial structure the expert's next steps reach) instead of its last frame: hindsight goals, many
+    shapes instead of one per task (docs/training.md, "Hindsight goals"); validation keeps the last
+    frame; 0: the paper's."""
     init: Path | None = None
     """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
     file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""

@@ -195,6 +195,12 @@ def _refuse_kernels(cfg: TrainConfig, model: str) -> None:
                          "those: leave it out")  # fmt: skip
 
 
+def _refuse_hindsight(cfg: TrainConfig, model: str) -> None:
+    if cfg.hindsight:
+        raise TrainError(f"--hindsight is a GCTN flag (the goals of its samples); the {model} has no goal "
+                         "image: leave it out")  # fmt: skip
+
+
 def _refuse_rollout(cfg: TrainConfig, model: str) -> None:
     if (cfg.vf_rollout or 1) > 1:
         raise TrainError(f"--vf-rollout is a VF flag (its multi-step loss); the {model} is trained on single "
@@ -218,9 +224,16 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
         losses = trained.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    job = _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures, judged=trained)
+    if not 0.0 <= cfg.hindsight <= 1.0:
+        raise TrainError(f"--hindsight {cfg.hindsight}: a share of the samples, between 0 and 1 "
+                         "(0: the paper's)")  # fmt: skip
+    drawn = partial(sampler_cls, hindsight=cfg.hindsight) if cfg.hindsight else None
+    job = _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures, judged=trained,
+               train_sampler=drawn)  # fmt: skip
     if turns > 1:  # part of what a resumed run must match; absent: the plain GCTN's loss
         job.config["turns"] = turns
+    if cfg.hindsight:  # likewise; absent: the last frame is every sample's goal
+        job.config["hindsight"] = cfg.hindsight
     return job
 
 
@@ -255,6 +268,7 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
     _refuse_turns(cfg, "visual-foresight model")
     _refuse_kernels(cfg, "visual-foresight model")
+    _refuse_hindsight(cfg, "visual-foresight model")
     preset = get_preset(cfg.preset)
     if cfg.vf_head is not None:
         preset = preset.replace(vf_head=cfg.vf_head)
@@ -323,6 +337,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
     _refuse_turns(cfg, "latent-dynamics model")
     _refuse_kernels(cfg, "latent-dynamics model")
+    _refuse_hindsight(cfg, "latent-dynamics model")
     _refuse_rollout(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
 

@@ -55,7 +55,8 @@ class TrainError(TvfError):
 
 SCHEDULES = ("constant", "cosine")
 RESUME_MATCH = (
-    "kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss", "turns", "init",
+    "kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss", "turns", "hindsight",
+    "init",
 )  # fmt: skip
 """What a resumed run must share with the run it continues."""
 
