@@ -6,7 +6,7 @@ import pytest
 
 from tvf.errors import TvfError
 from tvf.experiment.config import ExperimentConfig
-from tvf.experiment.pipeline import run_experiment, ship_weights, train_config
+from tvf.experiment.pipeline import check_experiment, run_experiment, ship_weights, train_config
 from tvf.experiment.shipping import model_card
 from tvf.io import read_jsonl
 from tvf.models.checkpoint import load_model
@@ -126,6 +126,9 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     hindsight = ExperimentConfig(out=tmp_path, preset="lite", gctn_hindsight=0.5).resolved()
     assert (train_config(hindsight, "gctn").hindsight, train_config(hindsight, "vf").hindsight) == (0.5, 0.0)
     assert train_config(lite, "gctn").hindsight == 0.0  # the paper's: every goal the last frame
+    with pytest.raises(TvfError, match="gctn training: --hindsight 1.5: a share"):
+        check_experiment(ExperimentConfig(out=tmp_path / "bad", preset="lite", gctn_hindsight=1.5))
+    assert not (tmp_path / "bad").exists()
 
 
 @pytest.mark.slow  # make test-all

@@ -15,7 +15,7 @@ from tvf.geometry import WORKSPACE
 from tvf.models.checkpoint import CheckpointError, load_checkpoint
 from tvf.runs import RunError
 from tvf.train.jobs import gctn_job, vf_job
-from tvf.train.trainer import TrainConfig, TrainError, learning_rate, train
+from tvf.train.trainer import TrainConfig, TrainError, check_config, learning_rate, train
 
 TASKS = ("stack-stair", "put-t")
 
@@ -306,5 +306,6 @@ def test_hindsight_goals_are_a_gctn_flag_recorded_and_matched_on_resume(data_roo
         train(other, gctn_job(other))
     with pytest.raises(TrainError, match="--hindsight is a GCTN flag"):
         vf_job(replace(cfg, out=tmp_path / "vf"))
-    with pytest.raises(TrainError, match="between 0 and 1"):
-        gctn_job(replace(cfg, out=tmp_path / "bad", hindsight=1.5))
+    for bad in (1.5, -0.1, float("nan")):
+        with pytest.raises(TrainError, match="between 0 and 1"):
+            check_config(replace(cfg, out=tmp_path / "bad", hindsight=bad))

@@ -224,9 +224,6 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
         losses = trained.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    if not 0.0 <= cfg.hindsight <= 1.0:
-        raise TrainError(f"--hindsight {cfg.hindsight}: a share of the samples, between 0 and 1 "
-                         "(0: the paper's)")  # fmt: skip
     drawn = partial(sampler_cls, hindsight=cfg.hindsight) if cfg.hindsight else None
     job = _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures, judged=trained,
                train_sampler=drawn)  # fmt: skip
