@@ -11,7 +11,8 @@ e.g. ``--rules kmeans,nms+picks3`` (``nms+picksP`` = NMS proposals branching ove
 the first D levels only, ``--turns-depth``; ``+rootR``, ``+kK`` and ``+depthD`` set ``--root-k``, ``--k`` and
 ``--depth``, e.g. ``nms+picks3+turns4+tdepth1+root6+k2`` for a wide root over a narrow tree; ``+mask``
 adds ``--goal-mask``, ``+placesRULE`` the mask with ``--mask-places RULE``, ``+centre`` adds
-``--centre-picks`` and ``+alphaA`` sets ``--alpha``, e.g. ``+alpha0.001``; the shipped TVF-L:
+``--centre-picks``, ``+alphaA`` sets ``--alpha``, e.g. ``+alpha0.001``, and ``+polishPxT`` sets
+``--place-search P --turn-search T``, e.g. ``+polish4x2``; the shipped TVF-L:
 ``nms+picks3+turns8+tdepth1+mask+rootalpha0.001``, with the block-centred picks and layered places:
 ``...+placeslayered+centre``).
 
@@ -79,7 +80,8 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
     """PlannerConfig fields, GCTN turns, goal mask place rule (None: no mask) and centred picks of a rule
     name: kmeans | nms | nms+picksP, each optionally +turnsT (the GCTN averaged over T quarter turns,
     tvf.models.symmetry), +tdepthD, +rootR, +kK, +depthD, +mask (tvf.models.goal_mask), +placesRULE,
-    +centre (tvf.models.pick_centre), +alphaA (``--alpha``), +rootalphaA (``--root-alpha``)."""
+    +centre (tvf.models.pick_centre), +alphaA (``--alpha``), +rootalphaA (``--root-alpha``), +polishPxT
+    (``--place-search P --turn-search T``)."""
     name, *options = rule.split("+")
     fields: dict = {"proposals": name}
     turns, places, centre = 1, None, False
@@ -100,6 +102,9 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
             fields["alpha"] = float(option[len("alpha") :])
         elif option.startswith("rootalpha"):
             fields["root_alpha"] = float(option[len("rootalpha") :])
+        elif option.startswith("polish"):
+            place, _, turn = option[len("polish") :].partition("x")
+            fields["place_search"], fields["turn_search"] = int(place), int(turn or 0)
         elif option.startswith("root"):
             fields["root_k"] = int(option[len("root") :])
         elif option.startswith("depth"):
@@ -109,7 +114,7 @@ def rule_config(rule: str) -> tuple[dict, int, str | None, bool]:
         else:
             raise SystemExit(
                 f"unknown rule option {option!r} in {rule!r}; use +picksP, +turnsT, +tdepthD, +rootR, +kK, "
-                "+depthD, +mask, +placesRULE, +centre, +alphaA or +rootalphaA"
+                "+depthD, +mask, +placesRULE, +centre, +alphaA, +rootalphaA or +polishPxT"
             )
     return fields, turns, places, centre
 

@@ -89,7 +89,7 @@ def load_planner(
     tvf-small-no-image-rules | tvf-large-no-image-rules) with the shipped weights, or a run folder, a
     ``.pt`` or a ``.safetensors`` file per model; ``planner`` overrides the search (k, depth, proposals,
     pick_branches, turns_depth, tie_band, root_k, order_branch, gamma, root_alpha, first_step_band,
-    snap_heights, support_check;
+    snap_heights, support_check, place_search, turn_search;
     docs/planner.md); ``keep_images`` keeps a TVF plan's imagined images; ``turns`` (1, 2, 4; 8 adds
     mirrors) averages the GCTN over quarter turns of the scene (default: the method's); ``goal_mask``
     True masks the GCTN's maps by the height difference to the goal (:mod:`tvf.models.goal_mask`;

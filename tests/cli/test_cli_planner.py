@@ -320,3 +320,19 @@ def test_ablate_with_a_simulated_foresight_names_it(capsys, tmp_path, smoke_weig
     assert "# K x depth ablation (tvf-small-paper, simulator foresight)" in out
     cell = json.loads((tmp_path / "a" / "k1-d1" / "summary.json").read_text())
     assert cell["foresight"] == "simulator"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--method", "tvf-large", "--place-search", "-1"), "place_search must be 0 to 26 pixels, got -1"),
+        (("--method", "tvf-large", "--turn-search", "19"), "turn_search must be 0 to 18 rotation bins"),
+        (("--method", "gctn", "--place-search", "2"), "gctn does not search"),
+        (("--method", "tvf-large", "--foresight", "simulator", "--turn-search", "1"), "drop them"),
+    ],
+)
+def test_eval_refuses_a_bad_polish_in_one_line(capsys, tmp_path, args, message):
+    out = str(tmp_path / "e")
+    code, _, err = run(capsys, "eval", *args, "--tasks", "put-t", "--episodes", "1", "--out", out)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "e").exists()

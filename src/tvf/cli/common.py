@@ -109,6 +109,13 @@ class PlannerFlags:
     every node that rests: the VF draws such a block where it is put, the simulator drops it
     (docs/planner.md); False: every imagined place counts as landed (the paper's); default: the
     method's."""
+    place_search: int | None = None
+    """TVF: after the search, the executed place may move up to PLACE_SEARCH pixels along each axis to
+    where the foresight's one-step image is nearest the goal, searched after --turn-search's turns and
+    before them again (default: the method's, 0: the GCTN's pixel, the paper's; docs/planner.md)."""
+    turn_search: int | None = None
+    """TVF: after the search, the executed turn may change by up to TURN_SEARCH rotation bins (10 degrees
+    each) either way, chosen likewise (default: the method's, 0: the paper's)."""
     foresight: str | None = None
     """TVF: what scores the search's nodes, vf (the VF's imagined images, the default) | simulator (each
     proposal executed in the episode's simulator and undone: a perfect foresight, an upper bound for
@@ -129,7 +136,7 @@ class PlannerFlags:
             self.turns, self.turns_depth, self.alpha, self.nms_radius, self.tie_band, self.root_k,
             self.goal_mask, self.mask_places, self.refine_yaw, self.order_branch, self.gamma,
             self.root_alpha, self.centred_share, self.centre_picks, self.foresight, self.first_step_band,
-            self.snap_heights, self.support_check,
+            self.snap_heights, self.support_check, self.place_search, self.turn_search,
         )  # fmt: skip
 
 

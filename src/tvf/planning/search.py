@@ -14,7 +14,9 @@ the discount (one misplaced block moves D by ~0.015, the discount costs ~0.01 pe
 action is the first one on the path to the best node (ties: the shallowest, then the earliest), and
 the tree is rebuilt from the real observation after every step (receding horizon). With a ``tie_band``
 > 0, root actions whose subtrees score within the band of the best are ties, and the GCTN's order of the
-root proposals decides between them (:func:`best_node`).
+root proposals decides between them (:func:`best_node`). With ``place_search`` or ``turn_search`` > 0 the
+executed action is that first action polished: moved to the nearby place and turn whose one-step
+image is nearest the goal (:meth:`TreeSearch.polish`; ``Plan.chosen``).
 """
 
 from __future__ import annotations
@@ -41,6 +43,14 @@ from tvf.planning.proposals import (
     with_extra_place,
 )
 from tvf.planning.support import FALL_PENALTY, rests
+
+MAX_PLACE_SEARCH = int(2 * BLOCK_PIXELS)
+"""The farthest :attr:`PlannerConfig.place_search` reaches: two blocks' widths."""
+MAX_TURN_SEARCH = 18
+"""The widest :attr:`PlannerConfig.turn_search`: half a turn either way in the 36 bins of a full turn."""
+POLISH_STAGES = ("turn", "place", "turn")
+"""The order :meth:`TreeSearch.polish` searches around the executed action: its turn at its place, its
+place at the best turn, the turn again at the best place."""
 
 
 def widest_node(k: int, root_k: int | None) -> int:
@@ -111,6 +121,13 @@ class PlannerConfig:
     """Proposals of the real state (the root's children); deeper nodes have ``k``. None: ``k`` (the paper).
     A wider root over a narrower tree costs about the same and tries more first actions (for TVF-L it
     did worse on validation seeds: docs/results.md)."""
+    place_search: int = 0
+    """Pixels: after the search, the executed place may move this far along each image axis to where
+    the foresight's one-step image is nearest the goal (:meth:`TreeSearch.polish`); 0: the proposal's
+    pixel, the paper's."""
+    turn_search: int = 0
+    """Rotation bins: after the search, the executed turn may change by up to this many bins either way,
+    chosen as the place (:attr:`place_search`); 0: the proposal's bin, the paper's."""
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.depth < 1:
@@ -142,6 +159,12 @@ class PlannerConfig:
         band = self.first_step_band
         if band is not None and not (math.isfinite(band) and band >= 0):
             raise ValueError(f"first_step_band must be None or a score difference >= 0, got {band}")
+        if not 0 <= self.place_search <= MAX_PLACE_SEARCH:
+            raise ValueError(f"place_search must be 0 to {MAX_PLACE_SEARCH} pixels, got {self.place_search}")
+        if not 0 <= self.turn_search <= MAX_TURN_SEARCH:
+            raise ValueError(
+                f"turn_search must be 0 to {MAX_TURN_SEARCH} rotation bins, got {self.turn_search}"
+            )
 
     @property
     def widest(self) -> int:
@@ -191,6 +214,9 @@ class Plan:
     """The root's proposals (with their picks), in the order of the depth-1 nodes."""
     counts: dict = field(default_factory=dict)
     """Model calls and evaluated states: gctn_calls, vf_calls, gctn_states, vf_states."""
+    polished: Node | None = None
+    """:attr:`first` with its place and turn moved to the best nearby ones by its one-step imagined
+    distance to the goal (``place_search``, ``turn_search``); None: not searched."""
 
     @property
     def path(self) -> list[Node]:
@@ -202,8 +228,13 @@ class Plan:
 
     @property
     def first(self) -> Node:
-        """The action to execute now."""
+        """The first action of the best path."""
         return self.path[0]
+
+    @property
+    def chosen(self) -> Node:
+        """The action to execute now: :attr:`first`, or its :attr:`polished` version."""
+        return self.polished if self.polished is not None else self.first
 
 
 def root_values(nodes: list[Node]) -> tuple[np.ndarray, np.ndarray]:
@@ -447,7 +478,66 @@ class TreeSearch:
         for plan, kept in zip(plans, images, strict=True):
             plan.best = best_node(plan.nodes, cfg.tie_band, cfg.first_step_band)
             plan.images = torch.cat(kept) if keep_images else None
+        if cfg.place_search or cfg.turn_search:
+            for r, plan in enumerate(plans):
+                plan.polished = self.polish(plan.first, currents[r : r + 1], goals[r : r + 1], plan.counts)
         return plans
+
+    @torch.no_grad()
+    def polish(self, node: Node, current: torch.Tensor, goal: torch.Tensor, counts: dict | None = None
+               ) -> Node:  # fmt: skip
+        """``node`` (an action on the real state ``current``, (1, 4, H, W)) with its turn and place moved to
+        where the foresight's image of it is nearest ``goal`` (the distance D the search scores): turns
+        within ``turn_search`` bins of its own and places within ``place_search`` pixels of its own along
+        each axis, searched one after the other (:data:`POLISH_STAGES`), each stage at the best of the
+        stage before. The action held so far wins ties, so a foresight that cannot tell them apart
+        leaves the proposal as it is. ``counts`` (a plan's) gets the foresight calls and images it costs."""
+        cfg = self.config
+        place, rotation, distance = node.place, node.rotation, None
+        for stage in POLISH_STAGES:
+            reach = cfg.turn_search if stage == "turn" else cfg.place_search
+            if reach == 0:
+                continue
+            places, rotations = self._around(node, place, rotation, stage, reach, tuple(current.shape[-2:]))
+            distances = self._one_step(current, goal, node.pick, places, rotations)
+            if counts is not None:
+                counts["vf_calls"] += 1 if cfg.batched else len(places)
+                counts["vf_states"] += len(places)
+            best = int(torch.argmin(distances))  # the first of equal minima: index 0, the action held
+            place, rotation, distance = places[best], int(rotations[best]), float(distances[best])
+        score = cfg.bonus - distance
+        return Node(node.index, node.parent, node.depth, node.pick, place, rotation, distance, score)
+
+    def _around(self, node: Node, place: np.ndarray, rotation: int, stage: str, reach: int,
+                shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """The candidates of one :meth:`polish` stage: the action held (``place``, ``rotation``) first, then
+        ``node``'s own turn (stage ``turn``) or place (``place``) and those within ``reach`` of it, the
+        other part held; (n, 2) places inside the image and (n,) rotation bins of a full turn."""
+        steps = np.array([0, *(s for d in range(1, reach + 1) for s in (-d, d))])
+        if stage == "turn":
+            rotations = np.concatenate([[rotation], (node.rotation + steps) % self.n_rotations])
+            return np.repeat(place[None], len(rotations), axis=0), rotations
+        offsets = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)
+        places = np.concatenate([place[None], node.place[None] + offsets])
+        inside = (places >= 0).all(axis=1) & (places[:, 0] < shape[0]) & (places[:, 1] < shape[1])
+        places = places[inside]
+        return places, np.full(len(places), rotation)
+
+    def _one_step(self, current: torch.Tensor, goal: torch.Tensor, pick: np.ndarray, places: np.ndarray,
+                  rotations: np.ndarray) -> torch.Tensor:  # fmt: skip
+        """D of the foresight's image of each action (``pick``, ``places[i]``, ``rotations[i]``) on
+        ``current``, towards ``goal`` (n,); with the support check, a place that would not rest carries
+        :data:`FALL_PENALTY`, as in the search."""
+        n = len(places)
+        picks = torch.as_tensor(np.repeat(np.asarray(pick)[None], n, axis=0))
+        yaws = torch.as_tensor(rotations * (2 * math.pi / self.n_rotations), dtype=torch.float32)
+        states = current.expand(n, -1, -1, -1)
+        places = torch.as_tensor(places)
+        _, distances = self._imagine(states, np.zeros(n, dtype=int), goal, picks, places, yaws, mix=False)
+        if self.config.support_check:  # as the search ranks its children
+            falls = ~rests(heights_of(states), picks, places)
+            distances = distances + FALL_PENALTY * falls.to(distances)
+        return distances
 
     @torch.no_grad()
     def grow(self, plan: Plan, states: torch.Tensor, parents: list[int], goal: torch.Tensor, level: int

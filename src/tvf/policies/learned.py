@@ -110,7 +110,8 @@ class TvfPolicy:
     def act_batch(
         self, observations: Sequence[Observation], goals: Sequence[Observation]
     ) -> list[np.ndarray]:
-        """The first action of each pair's plan, from one search over all the roots
+        """The chosen action of each pair's plan (its first, polished where the planner polishes), from
+        one search over all the roots
         (:meth:`~tvf.planning.search.TreeSearch.search_many`); ``last_plan`` is the last pair's plan."""
         current, target = (
             observations_tensor(observations, self.device),
@@ -121,9 +122,9 @@ class TvfPolicy:
         n = self.search.n_rotations
         return [
             bin_action(
-                p.first.pick,
-                p.first.place,
-                p.first.rotation,
+                p.chosen.pick,
+                p.chosen.place,
+                p.chosen.rotation,
                 n,
                 obs["height"],
                 refining_height(goal, self.refine_yaw),

@@ -25,6 +25,7 @@ from tvf.policies.learned import GctnPolicy, OraclePolicy, SimulatedTvfPolicy, T
 PLANNER_OPTIONS = (
     "k", "depth", "proposals", "pick_branches", "turns_depth", "alpha", "nms_radius", "tie_band", "root_k",
     "order_branch", "gamma", "root_alpha", "first_step_band", "snap_heights", "support_check",
+    "place_search", "turn_search",
 )  # fmt: skip
 """The PolicySpec fields that override a TVF method's planner preset (PlannerConfig fields of the same
 name; their flags are ``--k``, ``--pick-branches``, ...)."""
@@ -100,6 +101,12 @@ class PolicySpec:
     support_check: bool | None = None
     """TVF: rank a node whose path places a block that would not rest on its parent's height map under
     every node that rests (:mod:`tvf.planning.support`; None: the method's; False: the paper's)."""
+    place_search: int | None = None
+    """TVF: pixels the executed place may move, along each axis, to where its one-step imagined image is
+    nearest the goal (:meth:`tvf.planning.search.TreeSearch.polish`; None: the method's; 0: the paper's)."""
+    turn_search: int | None = None
+    """TVF: rotation bins either way the executed turn may change, chosen likewise (None: the method's;
+    0: the paper's)."""
 
     def planner_overrides(self) -> dict:
         """The planner fields this spec sets (None: the method's preset)."""
@@ -466,6 +473,10 @@ def _check_foresight(spec: PolicySpec, method: Method) -> None:
     if spec.foresight in RIGID_FORESIGHTS and spec.vf is not None:
         raise TvfError(f"--foresight {spec.foresight} draws the images without a network, so --vf {spec.vf} "
                        "would be ignored; drop --vf, or use --foresight vf")  # fmt: skip
+    if spec.foresight in SIMULATED and (spec.place_search or spec.turn_search):
+        raise TvfError(f"--place-search and --turn-search polish the action on an imagined image, which "
+                       f"--foresight {spec.foresight} does not draw for it; drop them, or use --foresight "
+                       "vf or rigid")  # fmt: skip
 
 
 def _check_centred_share(spec: PolicySpec) -> None:
