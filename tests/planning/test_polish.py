@@ -16,6 +16,7 @@ from tvf.planning.support import rests
 from tvf.policies import PolicySpec, make_policy, planner_of
 from tvf.sim.factory import sim_env
 from tvf.tasks import get_task
+from tvf.viz.plan import plan_record, polished_caption
 
 ROTATIONS = 36
 FORESIGHT = RigidForesight()
@@ -127,6 +128,11 @@ def test_a_policy_executes_the_polished_action_and_the_paper_none():
     assert plan.polished.distance <= plan.first.distance + 1e-9  # never worse than the unmoved action
     extra = {k: plan.counts[k] - plain.last_plan.counts[k] for k in ("vf_calls", "vf_states", "gctn_calls")}
     assert extra == {"vf_calls": 3, "vf_states": 6 + 50 + 6, "gctn_calls": 0}  # three stages, 7 x 7 square
+    record = plan_record(plan)  # `tvf viz plan`'s plan.json names the executed action
+    assert record["polished"]["place"] == plan.polished.place.tolist() and "polished" not in plan_record(
+        plain.last_plan
+    )
+    assert polished_caption(plain.last_plan) == "" and "polished by" in polished_caption(plan)
 
 
 def test_a_simulated_foresight_refuses_the_polish():

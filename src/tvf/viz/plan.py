@@ -30,18 +30,26 @@ def imagined_views(images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     return color.clamp(0, 255).round().to(torch.uint8).numpy(), height.clamp(min=0).numpy()
 
 
-def plan_record(plan) -> dict:
-    """A JSON-able description of a searched tree."""
+def node_record(n) -> dict:
+    """A JSON-able description of one node."""
     return {
+        "index": n.index, "parent": n.parent, "depth": n.depth, "pick": n.pick.tolist(),
+        "place": n.place.tolist(), "rotation": n.rotation, "distance": n.distance, "score": n.score,
+    }  # fmt: skip
+
+
+def plan_record(plan) -> dict:
+    """A JSON-able description of a searched tree (with ``polished``: the executed first action, where
+    the planner polishes it, ``--place-search``, ``--turn-search``)."""
+    record = {
         "best": plan.best,
         "path": [n.index for n in plan.path],
         "counts": plan.counts,
-        "nodes": [
-            {"index": n.index, "parent": n.parent, "depth": n.depth, "pick": n.pick.tolist(),
-             "place": n.place.tolist(), "rotation": n.rotation, "distance": n.distance, "score": n.score}
-            for n in plan.nodes
-        ],
-    }  # fmt: skip
+        "nodes": [node_record(n) for n in plan.nodes],
+    }
+    if plan.polished is not None:
+        record["polished"] = node_record(plan.polished)
+    return record
 
 
 def tree_edges(nodes) -> list[tuple[int, int]]:
@@ -149,6 +157,16 @@ def draw_tree(ax, obs: dict, plan, n_rotations: int) -> list[tuple[int, int]]:
     return edges
 
 
+def polished_caption(plan) -> str:
+    """The title's note on the executed action where the planner polished it (empty otherwise)."""
+    polished, first = plan.polished, plan.first
+    if polished is None:
+        return ""
+    rows, cols = (int(v) for v in polished.place - first.place)
+    turn = polished.rotation - first.rotation
+    return f"\nexecuted: #{first.index} polished by ({rows:+d}, {cols:+d}) px and {turn:+d} turn bins"
+
+
 def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     """A PNG: current, goal and the root's place map with its proposals on top; below, the search tree
     (colour | height per node, the score s, the distance D to the goal and the turn; the best path and
@@ -175,7 +193,7 @@ def decision_figure(obs: dict, goal: dict, plan, n_rotations: int) -> bytes:
     draw_tree(tree, obs, plan, n_rotations)
     tree.set_title(
         f"search tree: {len(plan.nodes)} imagined nodes, best #{plan.best} (blue path); each node: colour | "
-        "height, score s, distance D to the goal, turn of its place",
+        "height, score s, distance D to the goal, turn of its place" + polished_caption(plan),
         fontsize=9,
     )
     fig.tight_layout()
