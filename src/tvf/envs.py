@@ -38,7 +38,9 @@ class Env(Protocol):
     ``reset(seed=s)`` returns the first observation and an info dict holding ``goal`` (an observation of
     the finished structure) and ``progress`` (fraction of blocks placed). ``step(action)`` executes a
     ``(2, 4)`` pick-and-place action and returns ``(obs, reward, terminated, truncated, info)`` with
-    ``info`` holding ``success``, ``progress``, ``steps`` and ``primitive`` (how the motion ended).
+    ``info`` holding ``success``, ``progress``, ``steps`` and ``primitive`` (how the motion ended); a world
+    that can also says in ``info["misses"]`` how each unfilled target is missed
+    (:func:`tvf.sim.success.target_misses`), which evaluations record.
     """
 
     task: Task

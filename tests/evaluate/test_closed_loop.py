@@ -5,8 +5,9 @@ import json
 import pytest
 
 from tvf.errors import TvfError
-from tvf.evaluate.closed_loop import evaluate, wilson
+from tvf.evaluate.closed_loop import evaluate, miss_counts, summarise, summary_markdown, wilson
 from tvf.policies import PolicySpec
+from tvf.sim.success import MISS_KINDS
 
 
 def test_wilson_interval():
@@ -100,3 +101,38 @@ def test_the_resolved_settings_fill_in_the_planner_and_name_a_changed_default(tm
     old = tmp_path / "eval.json"
     old.write_text(json.dumps({**meta, "resolved": {**large, "depth": 2, "gone": 1}}))
     assert _changed_settings(old, meta) == ["depth (2 → 3)"]  # keys only one side has are not changes
+
+
+def test_records_say_how_the_unfilled_targets_are_missed(tmp_path):
+    from tvf.evaluate.runner import run_episode
+    from tvf.policies import make_policy
+    from tvf.sim.factory import sim_env
+    from tvf.tasks import get_task
+
+    summary = evaluate(PolicySpec("oracle"), ["stack-stair"], 1, 1, 1, tmp_path)
+    record = json.loads((tmp_path / "episodes.jsonl").read_text())
+    assert record["success"] and record["misses"] == []  # a finished structure misses nothing
+    assert summary["misses"] == {"failed": 0, "one_target": 0, "targets": dict.fromkeys(MISS_KINDS, 0),
+                                 "tasks": {}}  # fmt: skip
+    env = sim_env(get_task("stack-stair"))
+    cut = run_episode(env, 1, make_policy(PolicySpec("oracle"), env), max_steps=1)  # one block of six
+    assert not cut.success and len(cut.misses) == env.task.n_blocks - 1
+    assert {m["kind"] for m in cut.misses} == {"away"}  # the other blocks still lie where they spawned
+
+
+def test_the_summary_counts_the_misses_of_the_failed_episodes():
+    turn = {"target": 0, "xy_mm": 2.0, "z_mm": 0.0, "yaw_deg": 22.0, "kind": "turn"}
+    level = {"target": 3, "xy_mm": 4.0, "z_mm": 40.0, "yaw_deg": 1.0, "kind": "level"}
+    records = [
+        {"task": "put-t", "success": False, "progress": 0.5, "misses": [turn]},
+        {"task": "put-t", "success": False, "progress": 0.5, "misses": [turn, level]},
+        {"task": "put-t", "success": True, "progress": 1.0, "misses": []},
+        {"task": "stack-stair", "success": False, "progress": 0.5},  # a record from before misses
+    ]
+    counts = miss_counts(records)
+    assert counts["failed"] == 2 and counts["one_target"] == 1
+    assert counts["targets"] == {"turn": 2, "offset": 0, "level": 1, "away": 0}
+    text = summary_markdown(summarise(records, "gctn"))
+    assert "Failed episodes: 2, 1 of them by one target" in text and "turn 2, offset 0, level 1" in text
+    assert miss_counts([{"task": "put-t", "success": False, "progress": 0.0}]) is None
+    assert "Failed episodes" not in summary_markdown(summarise(records[3:], "gctn"))

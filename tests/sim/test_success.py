@@ -3,7 +3,16 @@ import math
 import numpy as np
 import pytest
 
-from tvf.sim.success import TOLERANCE, Tolerance, evaluate_structure, match_targets, pose_matches
+from tvf.sim.success import (
+    MISS_KINDS,
+    TOLERANCE,
+    Tolerance,
+    evaluate_structure,
+    match_targets,
+    miss_kind,
+    pose_matches,
+    target_misses,
+)
 
 TARGETS = np.array([[0.5, 0.0, 0.025], [0.5, 0.05, 0.025]])
 YAWS = np.array([0.3, 0.3])
@@ -100,3 +109,39 @@ def test_a_single_block_matches_and_an_unmatched_block_gets_minus_one():
     p = evaluate_structure(far, YAWS, TARGETS, YAWS)
     assert p.block_to_target == (-1, 1) and p.matched == 1 and p.fraction == 0.5
     assert match_targets(np.zeros((2, 0), bool)).tolist() == [-1, -1]
+
+
+CELLS = np.array([[0.40, 0.00, 0.025], [0.45, 0.00, 0.025], [0.40, 0.00, 0.065]])
+
+
+def _misses(blocks: np.ndarray, yaws: np.ndarray) -> list[dict]:
+    progress = evaluate_structure(blocks, yaws, CELLS, np.zeros(3))
+    return target_misses(blocks, yaws, CELLS, np.zeros(3), progress.block_to_target)
+
+
+def test_misses_name_each_unfilled_target_and_how_its_nearest_block_misses_it():
+    blocks = np.array([[0.40, 0.00, 0.025], [0.4503, 0.002, 0.025], [0.415, 0.00, 0.065]])
+    yaws = np.array([0.0, math.radians(25.0), 0.0])
+    misses = _misses(blocks, yaws)
+    assert [m["target"] for m in misses] == [1, 2] and [m["kind"] for m in misses] == ["turn", "offset"]
+    assert misses[0]["yaw_deg"] == pytest.approx(25.0) and misses[0]["xy_mm"] == pytest.approx(2.0)
+    assert misses[1]["xy_mm"] == pytest.approx(15.0) and misses[1]["z_mm"] == pytest.approx(0.0)
+
+
+def test_a_block_on_the_wrong_level_or_far_away_and_a_finished_structure():
+    level = np.array([[0.40, 0.00, 0.025], [0.45, 0.00, 0.065], [0.40, 0.00, 0.065]])  # one a layer up
+    assert [(m["target"], m["kind"], m["z_mm"]) for m in _misses(level, np.zeros(3))] == [(1, "level", 40.0)]
+    away = np.array([[0.40, 0.00, 0.025], [0.60, 0.20, 0.025], [0.40, 0.00, 0.065]])
+    assert [m["kind"] for m in _misses(away, np.zeros(3))] == ["away"]
+    assert _misses(CELLS.copy(), np.zeros(3)) == []
+    # fewer blocks than targets: the target left without a block is away, with no errors
+    missing = target_misses(CELLS[:2], np.zeros(2), CELLS, np.zeros(3), (0, 1))
+    assert missing == [{"target": 2, "xy_mm": None, "z_mm": None, "yaw_deg": None, "kind": "away"}]
+
+
+@pytest.mark.parametrize(
+    ("xy", "dz", "kind"),
+    [(0.005, 0.0, "turn"), (0.012, 0.003, "offset"), (0.02, -0.04, "level"), (0.025, 0.0, "away")],
+)
+def test_miss_kinds_follow_the_tolerances_and_half_a_cell(xy, dz, kind):
+    assert miss_kind(xy, dz) == kind and kind in MISS_KINDS

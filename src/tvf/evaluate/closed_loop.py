@@ -34,6 +34,7 @@ from tvf.policies import (
 from tvf.seeds import episode_seeds
 from tvf.sim.factory import SimEnvFactory
 from tvf.sim.sensors import get_sensor
+from tvf.sim.success import MISS_KINDS
 from tvf.tasks import BUILTIN, Task
 from tvf.weights import sha256_file
 
@@ -67,7 +68,27 @@ def summarise(results: list[dict], method: str) -> dict:
         "progress": float(np.mean([r["progress"] for r in rows])) if rows else 0.0,
         "episodes": n,
     }
-    return {"method": method, "tasks": rows, "average": average}
+    summary = {"method": method, "tasks": rows, "average": average}
+    misses = miss_counts(results)
+    if misses is not None:
+        summary["misses"] = misses
+    return summary
+
+
+def miss_counts(results: list[dict]) -> dict | None:
+    """The unfilled targets of the failed episodes by kind (:data:`tvf.sim.success.MISS_KINDS`), per task
+    and over all; None where no record holds ``misses`` (older records, other worlds)."""
+    failed = [r for r in results if not r["success"] and "misses" in r]
+    if not any("misses" in r for r in results):
+        return None
+    per_task: dict[str, dict[str, int]] = {}
+    for r in failed:
+        counts = per_task.setdefault(r["task"], dict.fromkeys(MISS_KINDS, 0))
+        for miss in r["misses"]:
+            counts[miss["kind"]] += 1
+    total = {kind: sum(c[kind] for c in per_task.values()) for kind in MISS_KINDS}
+    one = sum(len(r["misses"]) == 1 for r in failed)
+    return {"failed": len(failed), "one_target": one, "targets": total, "tasks": per_task}
 
 
 def summary_markdown(summary: dict) -> str:
@@ -81,6 +102,13 @@ def summary_markdown(summary: dict) -> str:
     rows.append(("**average**", a["episodes"], f"**{a['success']:.1%}**", a["ci95"], a["progress"]))
     for name, n, rate, (lo, hi), progress in rows:
         lines.append(f"| {name} | {n} | {rate} | {lo:.0%}–{hi:.0%} | {progress:.1%} |")
+    misses = summary.get("misses")
+    if misses and misses["failed"]:
+        kinds = ", ".join(f"{kind} {n}" for kind, n in misses["targets"].items())
+        lines += ["", f"Failed episodes: {misses['failed']}, {misses['one_target']} of them by one target. "
+                  f"Their unfilled targets by the nearest block: {kinds} (turn: in place, turned; offset: "
+                  "on its level, 1 cm to half a cell off; level: on its cell at another height; away: "
+                  "none within half a cell)."]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

@@ -32,6 +32,9 @@ class EpisodeResult:
     steps: int
     actions: list[list[list[float]]] = field(default_factory=list)
     primitives: list[str] = field(default_factory=list)
+    misses: list[dict] = field(default_factory=list)
+    """How each target unfilled at the end is missed (:func:`tvf.sim.success.target_misses`), where the
+    world reports it (``info["misses"]``; the simulator does)."""
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -49,7 +52,7 @@ def run_episode(
     obs, info = env.reset(seed=seed)
     goal = info["goal"]
     policy.reset()
-    result = EpisodeResult(env.task.name, seed, False, info["progress"], 0)
+    result = EpisodeResult(env.task.name, seed, False, info["progress"], 0, misses=info.get("misses", []))
     for _ in range(max_steps):
         action = policy.act(obs, goal)
         if on_step is not None:
@@ -70,6 +73,7 @@ def _record_step(result: EpisodeResult, action: np.ndarray, info: dict) -> None:
     result.actions.append(np.asarray(action).tolist())
     result.primitives.append(info["primitive"])
     result.steps, result.success, result.progress = info["steps"], info["success"], info["progress"]
+    result.misses = info.get("misses", [])
 
 
 def run_episodes(
@@ -91,7 +95,8 @@ def run_episodes(
         policy.reset()
         observations.append(obs)
         goals.append(info["goal"])
-        results.append(EpisodeResult(env.task.name, seed, False, info["progress"], 0))
+        results.append(EpisodeResult(env.task.name, seed, False, info["progress"], 0,
+                                     misses=info.get("misses", [])))  # fmt: skip
     active, taken = [i for i, budget in enumerate(budgets) if budget > 0], 0
     while active:
         actions = act_all([policies[i] for i in active], [observations[i] for i in active],

@@ -31,7 +31,7 @@ from tvf.geometry import WORKSPACE
 from tvf.sim import sensors
 from tvf.sim.oracle import oracle_action, random_action
 from tvf.sim.sensors import SensorConfig, get_sensor
-from tvf.sim.success import Progress, evaluate_structure
+from tvf.sim.success import Progress, evaluate_structure, target_misses
 from tvf.sim.world import SimConfig, World
 from tvf.tasks import Task, get_task, load_tasks
 
@@ -221,6 +221,11 @@ class TvfEnv(gym.Env):
     def progress(self) -> Progress:
         return evaluate_structure(*self.world.block_poses(), *self.world.target_poses())
 
+    def misses(self, progress: Progress | None = None) -> list[dict]:
+        """How each target still unfilled is missed (:func:`tvf.sim.success.target_misses`)."""
+        progress = progress or self.progress()
+        return target_misses(*self.world.block_poses(), *self.world.target_poses(), progress.block_to_target)
+
     def _info(self, progress: Progress) -> dict:
         return {
             "task": self.task.name,
@@ -229,6 +234,7 @@ class TvfEnv(gym.Env):
             "progress": progress.fraction,
             "steps": self.steps,
             "coverage": self.coverage.get("obs", 0.0),
+            "misses": self.misses(progress),
         }
 
     def step(self, action):
