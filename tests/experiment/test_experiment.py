@@ -123,6 +123,9 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     c4 = ExperimentConfig(out=tmp_path, preset="lite", gctn_kernels="c4").resolved()
     assert (train_config(c4, "gctn").gctn_kernels, train_config(c4, "vf").gctn_kernels) == ("c4", None)
     assert train_config(lite, "gctn").gctn_kernels is None  # the preset's plain kernels
+    wide = ExperimentConfig(out=tmp_path, preset="lite", gctn_width=0.25).resolved()
+    assert (train_config(wide, "gctn").gctn_width, train_config(wide, "vf").gctn_width) == (0.25, None)
+    assert train_config(lite, "gctn").gctn_width is None  # the preset's width
     hindsight = ExperimentConfig(out=tmp_path, preset="lite", gctn_hindsight=0.5).resolved()
     assert (train_config(hindsight, "gctn").hindsight, train_config(hindsight, "vf").hindsight) == (0.5, 0.0)
     assert train_config(lite, "gctn").hindsight == 0.0  # the paper's: every goal the last frame

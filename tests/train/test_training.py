@@ -12,7 +12,7 @@ import torch
 from tvf.data.format import Episode, episode_name, write_episode
 from tvf.errors import TvfError
 from tvf.geometry import WORKSPACE
-from tvf.models.checkpoint import CheckpointError, load_checkpoint
+from tvf.models.checkpoint import CheckpointError, load_checkpoint, load_trained
 from tvf.runs import RunError
 from tvf.train.jobs import gctn_job, vf_job
 from tvf.train.trainer import TrainConfig, TrainError, check_config, learning_rate, train
@@ -286,6 +286,30 @@ def test_c4_kernels_are_a_gctn_flag_recorded_in_the_preset(data_root, tmp_path):
         vf_job(replace(cfg, out=tmp_path / "vf"))
     with pytest.raises(TvfError, match="gctn_kernels must be one of plain, c4"):
         gctn_job(replace(cfg, out=tmp_path / "bad", gctn_kernels="c8"))
+
+
+def test_gctn_width_is_a_gctn_flag_recorded_in_the_preset(data_root, tmp_path):
+    cfg = config(data_root, tmp_path / "wide", steps=2, gctn_width=0.125)
+    train(cfg, gctn_job(cfg))
+    saved = json.loads((tmp_path / "wide" / "config.json").read_text())
+    assert (saved["preset"]["attention_width"], saved["preset"]["transport_width"]) == (0.125, 0.125)
+    assert saved["preset"]["vf_width"] == 0.0625  # the VF's width stays the preset's
+    narrow = config(data_root, tmp_path / "narrow", steps=2)
+    train(narrow, gctn_job(narrow))
+
+    def count(run: str) -> int:  # the parameters of the GCTN the planners build from a run
+        return sum(p.numel() for p in load_trained(tmp_path / run, "gctn").parameters())
+
+    assert count("wide") > 3 * count("narrow")
+    again = replace(cfg, resume=True, steps=3, gctn_width=None)
+    with pytest.raises(RunError, match="preset"):  # another network: a resume must name the same width
+        train(again, gctn_job(again))
+    with pytest.raises(TrainError, match="--gctn-width is a GCTN flag"):
+        vf_job(replace(cfg, out=tmp_path / "vf"))
+    for bad in (0.0, -1.0, 3.0, float("nan")):
+        with pytest.raises(TrainError, match="--gctn-width must be between 0.03 and 2"):
+            gctn_job(replace(cfg, out=tmp_path / "bad", gctn_width=bad))
+    assert not (tmp_path / "bad").exists()
 
 
 def test_hindsight_goals_are_a_gctn_flag_recorded_and_matched_on_resume(data_root, tmp_path):

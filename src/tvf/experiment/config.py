@@ -96,6 +96,9 @@ class ExperimentConfig:
     """GCTN kernels: plain (the paper's) | c4 (tied over quarter turns: the GCTN's maps exactly
     equivariant to quarter turns of the scene, at the plain cost; docs/models.md); default: the preset's
     (plain)."""
+    gctn_width: float | None = None
+    """GCTN: the width multiplier of its attention and transport FCNs (tvf train gctn --gctn-width; lite
+    0.125, paper 1; docs/training.md, "A wider GCTN"); default: the preset's."""
     gctn_hindsight: float = 0.0
     """GCTN: the share of training samples whose goal is a later frame of the same demonstration, a
     partial structure on the way, instead of its last frame (tvf train gctn --hindsight;

@@ -101,6 +101,7 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
         data=cfg.data_root, out=cfg.out / kind, demos=cfg.demos, preset=cfg.preset, seed=cfg.seed,
         tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, restart=cfg.restart, device=cfg.device,
         wandb=cfg.wandb, gctn_kernels=cfg.gctn_kernels if kind == "gctn" else None,
+        gctn_width=cfg.gctn_width if kind == "gctn" else None,
         hindsight=cfg.gctn_hindsight if kind == "gctn" else 0.0, **overrides,
     ), kind)  # fmt: skip
     return _with_intervals(tc)

@@ -57,6 +57,10 @@ class TrainConfig:
     """GCTN only: plain (the paper's) | c4: every kernel of its FCNs tied over quarter turns, so its maps
     are exactly equivariant to quarter turns of the scene by construction, at the plain FCNs' cost (a
     quarter of the free weights; tvf.models.c4, docs/models.md); default: the preset's (plain)."""
+    gctn_width: float | None = None
+    """GCTN only: the width multiplier of its attention and transport FCNs (a multiple of the paper's
+    channels: lite 0.125, paper 1; a wider GCTN costs more per step, docs/training.md); default: the
+    preset's."""
     hindsight: float = 0.0
     """GCTN only: the share of training samples whose goal is a later frame of the same demonstration (a
     partial structure the expert's next steps reach) instead of its last frame: hindsight goals, many

@@ -189,10 +189,13 @@ def _refuse_turns(cfg: TrainConfig, model: str) -> None:
                          "such maps: leave it out")  # fmt: skip
 
 
-def _refuse_kernels(cfg: TrainConfig, model: str) -> None:
+def _refuse_gctn_network_flags(cfg: TrainConfig, model: str) -> None:
     if cfg.gctn_kernels is not None:
         raise TrainError(f"--gctn-kernels is a GCTN flag (its FCNs' kernels); the {model} has none of "
                          "those: leave it out")  # fmt: skip
+    if cfg.gctn_width is not None:
+        raise TrainError(f"--gctn-width is a GCTN flag (its FCNs' width); the {model} takes its width from "
+                         "the preset: leave it out")  # fmt: skip
 
 
 def _refuse_hindsight(cfg: TrainConfig, model: str) -> None:
@@ -207,6 +210,14 @@ def _refuse_rollout(cfg: TrainConfig, model: str) -> None:
                          "steps: leave it out")  # fmt: skip
 
 
+def check_gctn_width(width: float) -> float:
+    """``width`` if it is a usable width multiplier of the GCTN's FCNs; otherwise a one-line error."""
+    if not (0.03 <= width <= 2.0):
+        raise TrainError(f"--gctn-width must be between 0.03 and 2 (a multiple of the paper's channels: lite "
+                         f"0.125, paper 1), got {width}; fix --gctn-width")  # fmt: skip
+    return width
+
+
 def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     """Training job for the goal-conditioned Transporter (with ``turns`` > 1: its symmetrised maps, which
     are also what is validated; the plain GCTN inside is what is saved)."""
@@ -214,6 +225,9 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     preset = get_preset(cfg.preset)
     if cfg.gctn_kernels is not None:
         preset = preset.replace(gctn_kernels=cfg.gctn_kernels)
+    if cfg.gctn_width is not None:
+        preset = preset.replace(attention_width=check_gctn_width(cfg.gctn_width),
+                                transport_width=cfg.gctn_width)  # fmt: skip
     model = GCTN(preset, seed=cfg.seed)
     turns = check_turns(1 if cfg.turns is None else cfg.turns)
     trained = symmetrized(model, turns)
@@ -264,7 +278,7 @@ def gctn_metrics(model, items: list[dict[str, torch.Tensor]], device: torch.devi
 def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
     _refuse_turns(cfg, "visual-foresight model")
-    _refuse_kernels(cfg, "visual-foresight model")
+    _refuse_gctn_network_flags(cfg, "visual-foresight model")
     _refuse_hindsight(cfg, "visual-foresight model")
     preset = get_preset(cfg.preset)
     if cfg.vf_head is not None:
@@ -333,7 +347,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     if cfg.vf_head is not None:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
     _refuse_turns(cfg, "latent-dynamics model")
-    _refuse_kernels(cfg, "latent-dynamics model")
+    _refuse_gctn_network_flags(cfg, "latent-dynamics model")
     _refuse_hindsight(cfg, "latent-dynamics model")
     _refuse_rollout(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
