@@ -41,12 +41,27 @@ def on(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.
 
 
 def named_preset(name: str) -> ModelPreset:
-    """A preset by name; ``NAME+c4`` is that preset with the GCTN's quarter-turn-tied kernels."""
-    base, plus, variant = name.partition("+")
-    if plus and variant != "c4":
-        raise SystemExit(f"unknown preset variant {variant!r} in {name!r}: the one variant is +c4")
+    """A preset by name, with variants after ``+``: ``c4``, the GCTN's quarter-turn-tied kernels, and
+    ``wW``, the GCTN's attention and transport FCNs at width W (``lite+c4+w0.25``: `--gctn-width 0.25`)."""
+    base, *variants = name.split("+")
     preset = get_preset(base)
-    return preset.replace(gctn_kernels="c4") if plus else preset
+    for variant in variants:
+        if variant == "c4":
+            preset = preset.replace(gctn_kernels="c4")
+        elif variant.startswith("w") and _is_number(variant[1:]):
+            preset = preset.replace(attention_width=float(variant[1:]), transport_width=float(variant[1:]))
+        else:
+            raise SystemExit(f"unknown preset variant {variant!r} in {name!r}: the variants are +c4 and "
+                             "+wW (the GCTN at width W)")  # fmt: skip
+    return preset
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def preset_benchmark_main(
@@ -58,7 +73,8 @@ def preset_benchmark_main(
     and print one JSON object."""
     parser = argparse.ArgumentParser(description=doc)
     parser.add_argument("--presets", default="lite,smoke",
-                        help="comma-separated preset names; NAME+c4: with the GCTN's C4 kernels")  # fmt: skip
+                        help="comma-separated preset names; NAME+c4: with the GCTN's C4 kernels; "
+                        "NAME+wW: the GCTN at width W (e.g. lite+c4+w0.25)")  # fmt: skip
     parser.add_argument("--paper", action="store_true", help="also run the (slow) paper preset")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per item (the best is kept)")
     parser.add_argument("--threads", type=int, default=2)

@@ -3,7 +3,8 @@
 Prints one JSON object. Usage: python benchmarks/gctn.py [--paper] [--presets lite,smoke] [--repeats N]
 [--threads 2] [--nchw] [--device cuda] (on a GPU: the paper preset's samples/s against the paper's
 0.08 s a step). The ``paper`` preset runs only with --paper (minutes on a CPU). ``--presets lite,lite+c4``
-puts the GCTN with quarter-turn-tied kernels (``--gctn-kernels c4``) beside the plain one.
+puts the GCTN with quarter-turn-tied kernels (``--gctn-kernels c4``) beside the plain one; ``lite+c4+w0.25``
+is that GCTN at width 0.25 (``--gctn-width 0.25``).
 """
 
 from __future__ import annotations
