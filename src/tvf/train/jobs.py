@@ -226,8 +226,8 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
     if cfg.gctn_kernels is not None:
         preset = preset.replace(gctn_kernels=cfg.gctn_kernels)
     if cfg.gctn_width is not None:
-        preset = preset.replace(attention_width=check_gctn_width(cfg.gctn_width),
-                                transport_width=cfg.gctn_width)  # fmt: skip
+        width = check_gctn_width(cfg.gctn_width)
+        preset = preset.replace(attention_width=width, transport_width=width)
     model = GCTN(preset, seed=cfg.seed)
     turns = check_turns(1 if cfg.turns is None else cfg.turns)
     trained = symmetrized(model, turns)
