@@ -186,37 +186,75 @@ def test_sampled_transforms_keep_key_points_inside():
 
 
 # ------------------------------------------------------------------- augmentation on real episodes
+def landing_errors(episodes, batch: dict, k: int) -> tuple[float, float]:
+    """How far sample ``k``'s action carries its picked block from where the block came to rest (px),
+    with the labelled turn and with the opposite one, in the sample's (augmented) image frame. Also
+    checks that the pick lies on a block and that the turn reaches the block's final yaw."""
+    ep, step = episodes[int(batch["episode"][k])], int(batch["step"][k])
+    mirrored = bool(batch["aug_mirror"][k])
+    se2 = Se2(batch["aug_yaw"][k : k + 1].numpy().astype(np.float64),
+              batch["aug_shift"][k : k + 1].numpy().astype(np.float64), np.array([mirrored]))  # fmt: skip
+    pick, place = batch["pick"][k].numpy(), batch["place"][k].numpy()
+    assert batch["current_height"][k, pick[0], pick[1]] >= 0.03  # the moved pick lies on a block
+    # the picked block (nearest to the pick) and where it came to rest after the step
+    before, after = ep.blocks[step], ep.blocks[step + 1]
+    block = int(np.argmin(np.linalg.norm(before[:, :2] - ep.pick[step, :2], axis=1)))
+    centre = transform_points(world_to_subpixel(before[block, :2])[None, None], se2)[0, 0]
+    landed = transform_points(world_to_subpixel(after[block, :2])[None, None], se2)[0, 0]
+    delta = float(bin_to_yaw(batch["rot_bin"][k].item(), 36))
+    # the block's yaw plus the turn reaches its final yaw, mod 90 degrees (a mirror reverses both yaws)
+    sense = -1.0 if mirrored else 1.0
+    assert abs(
+        wrap_symmetric(sense * (before[block, 3] - after[block, 3]) + delta, BLOCK_SYMMETRY)
+    ) < math.radians(10)
+    # the tool turns the block by delta about the pick point (image turn == world yaw)
+    turned = [place + rotate_pixels(centre - pick, d, np.zeros(2)) for d in (delta, -delta)]
+    return float(np.linalg.norm(turned[0] - landed)), float(np.linalg.norm(turned[1] - landed))
+
+
 def test_augmented_actions_still_pick_the_block_and_reach_its_pose(real_root):
-    ds = open_dataset(real_root / "train")
-    episodes = ds.load_all()
+    episodes = open_dataset(real_root / "train").load_all()
     rng = np.random.default_rng(7)
-    errors, wrong_turn_errors = [], []
-    for sampler in (GctnSampler(episodes), VfSampler(episodes, identity_fraction=0.0)):
-        batch = sampler.sample(32, rng)
-        for k in range(32):
-            ep, step = episodes[int(batch["episode"][k])], int(batch["step"][k])
-            phi = float(batch["aug_yaw"][k])
-            se2 = Se2(np.array([phi]), batch["aug_shift"][k : k + 1].numpy().astype(np.float64))
-            pick = batch["pick"][k].numpy()
-            place = batch["place"][k].numpy()
-            # 1. the transformed pick pixel lies on a block in the transformed image
-            assert batch["current_height"][k, pick[0], pick[1]] >= 0.03
-            # 2. the picked block (nearest to the pick) and where it came to rest after the step
-            before, after = ep.blocks[step], ep.blocks[step + 1]
-            block = int(np.argmin(np.linalg.norm(before[:, :2] - ep.pick[step, :2], axis=1)))
-            centre = transform_points(world_to_subpixel(before[block, :2])[None, None], se2)[0, 0]
-            landed = transform_points(world_to_subpixel(after[block, :2])[None, None], se2)[0, 0]
-            delta = float(bin_to_yaw(batch["rot_bin"][k].item(), 36))
-            # the tool turns the block by delta about the pick point (image turn == world yaw)
-            errors.append(np.linalg.norm(place + rotate_pixels(centre - pick, delta, np.zeros(2)) - landed))
-            wrong_turn_errors.append(
-                np.linalg.norm(place + rotate_pixels(centre - pick, -delta, np.zeros(2)) - landed)
-            )
-            # 3. the block's yaw plus the turn reaches its final yaw (both turned by phi), mod 90 degrees
-            err = wrap_symmetric(before[block, 3] + phi + delta - (after[block, 3] + phi), BLOCK_SYMMETRY)
-            assert abs(err) < math.radians(10)
+    batches = [s.sample(32, rng) for s in (GctnSampler(episodes), VfSampler(episodes, identity_fraction=0.0))]
+    errors, wrong_turn_errors = zip(
+        *(landing_errors(episodes, b, k) for b in batches for k in range(32)), strict=True
+    )
     assert max(errors) < 2.0, max(errors)  # pixel rounding and where the block really settled
     assert max(wrong_turn_errors) > 2.0  # the check can tell a sign error apart
+
+
+def test_mirrored_samples_still_pick_the_block_and_reach_its_pose(real_root):
+    """A mirrored GCTN sample is a consistent scene: the reflected pick lies on the block, and the
+    negated turn (not the recorded one) carries the reflected block to where it came to rest."""
+    episodes = open_dataset(real_root / "train").load_all()
+    batch = GctnSampler(episodes, mirror=1.0).sample(32, np.random.default_rng(11))
+    assert batch["aug_mirror"].all()
+    recorded = [
+        int(episodes[int(e)].rotation_bins(36)[int(s)])
+        for e, s in zip(batch["episode"], batch["step"], strict=True)
+    ]
+    assert batch["rot_bin"].tolist() == [-b % 36 for b in recorded]
+    errors, unnegated_errors = zip(*(landing_errors(episodes, batch, k) for k in range(32)), strict=True)
+    assert max(errors) < 2.0, max(errors)
+    assert max(unnegated_errors) > 2.0  # an unnegated label would not carry the block to its rest
+
+
+def test_a_mirror_reverses_columns_and_costs_no_draw_when_off(synthetic):
+    images = torch.arange(2 * 4 * 160 * 160, dtype=torch.float32).reshape(2, 4, 160, 160)
+    flip = Se2(np.zeros(2), np.zeros((2, 2)), np.array([True, False]))
+    out = warp(images, flip)
+    assert torch.equal(out[0], images[0].flip(-1)) and torch.equal(out[1], images[1])
+    points = np.array([[[10.0, 3.0]], [[10.0, 3.0]]])
+    assert np.allclose(transform_points(points, flip), [[[10.0, 156.0]], [[10.0, 3.0]]])
+    assert transform_pixels(np.array([[[4, 0]]]), flip.subset(slice(0, 1))).tolist() == [[[4, 159]]]
+    plain = GctnSampler(synthetic).sample(16, np.random.default_rng(3))
+    off = GctnSampler(synthetic, mirror=0.0).sample(16, np.random.default_rng(3))
+    assert all(torch.equal(plain[k], off[k]) for k in plain) and not off["aug_mirror"].any()
+    half = GctnSampler(synthetic, mirror=0.5).sample(400, np.random.default_rng(4))
+    assert 0.4 < float(half["aug_mirror"].float().mean()) < 0.6
+    assert not GctnSampler(synthetic, mirror=1.0).item(0)["aug_mirror"].any()  # validation: never mirrored
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        GctnSampler(synthetic, mirror=1.5)
 
 
 def test_expert_reach_stops_before_a_random_step():

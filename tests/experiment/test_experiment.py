@@ -129,6 +129,9 @@ def test_training_defaults_come_from_the_preset_and_flags_win(tmp_path):
     hindsight = ExperimentConfig(out=tmp_path, preset="lite", gctn_hindsight=0.5).resolved()
     assert (train_config(hindsight, "gctn").hindsight, train_config(hindsight, "vf").hindsight) == (0.5, 0.0)
     assert train_config(lite, "gctn").hindsight == 0.0  # the paper's: every goal the last frame
+    mirror = ExperimentConfig(out=tmp_path, preset="lite", gctn_mirror=0.5).resolved()
+    assert (train_config(mirror, "gctn").mirror, train_config(mirror, "vf").mirror) == (0.5, 0.0)
+    assert train_config(lite, "gctn").mirror == 0.0  # the paper's: no mirror images
     with pytest.raises(TvfError, match="gctn training: --hindsight 1.5: a share"):
         check_experiment(ExperimentConfig(out=tmp_path / "bad", preset="lite", gctn_hindsight=1.5))
     assert not (tmp_path / "bad").exists()

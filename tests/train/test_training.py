@@ -312,24 +312,38 @@ def test_gctn_width_is_a_gctn_flag_recorded_in_the_preset(data_root, tmp_path):
     assert not (tmp_path / "bad").exists()
 
 
+def check_gctn_sample_flag(data_root, tmp_path, flag: str, value: float, other: float) -> None:
+    """A GCTN flag of how samples are drawn: recorded in the run's config when set (absent when 0), a
+    resume with another value refused, the VF refusing it, shares outside 0-1 (NaN too) refused."""
+    cfg = config(data_root, tmp_path / flag, steps=2, **{flag: value})
+    train(cfg, gctn_job(cfg))
+    assert json.loads((tmp_path / flag / "config.json").read_text())[flag] == value
+    plain = config(data_root, tmp_path / "plain", steps=2)
+    train(plain, gctn_job(plain))
+    assert flag not in json.loads((tmp_path / "plain" / "config.json").read_text())
+    changed = replace(plain, resume=True, steps=3, **{flag: other})
+    with pytest.raises(RunError, match=flag):  # a resume must draw its samples as the run did
+        train(changed, gctn_job(changed))
+    with pytest.raises(TrainError, match=f"--{flag} is a GCTN flag"):
+        vf_job(replace(cfg, out=tmp_path / "vf"))
+    for bad in (1.5, -0.1, float("nan")):
+        with pytest.raises(TrainError, match=f"--{flag} .*between 0 and 1"):
+            check_config(replace(cfg, out=tmp_path / "bad", **{flag: bad}))
+    assert not (tmp_path / "bad").exists()
+
+
+def test_mirror_images_are_a_gctn_flag_recorded_and_matched_on_resume(data_root, tmp_path):
+    mirrored = gctn_job(config(data_root, tmp_path / "m", steps=2, mirror=1.0))
+    assert all(mirrored.train_batch(np.random.default_rng(k), None)["aug_mirror"].all() for k in range(3))
+    plain = gctn_job(config(data_root, tmp_path / "p", steps=2))
+    assert not plain.train_batch(np.random.default_rng(0), None)["aug_mirror"].any()
+    check_gctn_sample_flag(data_root, tmp_path, "mirror", 1.0, 0.5)
+
+
 def test_hindsight_goals_are_a_gctn_flag_recorded_and_matched_on_resume(data_root, tmp_path):
-    cfg = config(data_root, tmp_path / "hs", steps=2, hindsight=0.5)
-    job = gctn_job(cfg)
+    job = gctn_job(config(data_root, tmp_path / "h", steps=2, hindsight=0.5))
     batches = [job.train_batch(np.random.default_rng(k), None) for k in range(8)]
     frames = torch.cat([b["goal_frame"] for b in batches])
     steps = torch.cat([b["step"] for b in batches])
     assert (frames > steps).all()
-    train(cfg, job)
-    saved = json.loads((tmp_path / "hs" / "config.json").read_text())
-    assert saved["hindsight"] == 0.5
-    plain = config(data_root, tmp_path / "plain", steps=2)
-    train(plain, gctn_job(plain))
-    assert "hindsight" not in json.loads((tmp_path / "plain" / "config.json").read_text())
-    other = replace(plain, resume=True, steps=3, hindsight=0.25)
-    with pytest.raises(RunError, match="hindsight"):  # a resume must draw its goals as the run did
-        train(other, gctn_job(other))
-    with pytest.raises(TrainError, match="--hindsight is a GCTN flag"):
-        vf_job(replace(cfg, out=tmp_path / "vf"))
-    for bad in (1.5, -0.1, float("nan")):
-        with pytest.raises(TrainError, match="between 0 and 1"):
-            check_config(replace(cfg, out=tmp_path / "bad", hindsight=bad))
+    check_gctn_sample_flag(data_root, tmp_path, "hindsight", 0.5, 0.25)

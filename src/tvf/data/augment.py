@@ -11,6 +11,10 @@ yaw) is unchanged, because turning the whole scene turns the block and its targe
 Distribution (facts §5): yaw ~ N(0, 60 degrees), shift ~ N(0, 160/6 px) per axis, resampled until
 every key point (and, with ``margin``, the points ``margin`` pixels away along rows and columns)
 stays inside the image; after ``max_tries`` rejected draws the sample is left untransformed.
+
+Mirror images (the GCTN's ``--mirror``, off by default): a drawn share of the samples is reflected
+left-right before its turn. A reflection reverses the sense of every turn, so a mirrored sample's
+rotation label is the negated one (:class:`tvf.data.samplers.GctnSampler`).
 """
 
 from __future__ import annotations
@@ -35,10 +39,13 @@ MAX_TRIES = 100
 
 @dataclass(frozen=True)
 class Se2:
-    """A batch of transforms: ``yaw`` (B,) radians and ``shift`` (B, 2) pixels as (row, col)."""
+    """A batch of transforms: ``yaw`` (B,) radians and ``shift`` (B, 2) pixels as (row, col); with
+    ``mirror`` (B,) bool, the flagged samples are first mirrored left-right (columns reversed about the
+    image centre), so their transform is a reflection, then the turn and the shift."""
 
     yaw: np.ndarray
     shift: np.ndarray
+    mirror: np.ndarray | None = None
 
     @staticmethod
     def identity(batch: int) -> Se2:
@@ -47,10 +54,26 @@ class Se2:
     def __len__(self) -> int:
         return len(self.yaw)
 
+    def mirrored(self) -> np.ndarray:
+        """(B,) bool: which samples are mirrored (none without ``mirror``)."""
+        return np.zeros(len(self), bool) if self.mirror is None else np.asarray(self.mirror, bool)
+
+    def subset(self, part: slice) -> Se2:
+        """The transforms of the samples ``part``."""
+        mirror = None if self.mirror is None else self.mirror[part]
+        return Se2(self.yaw[part], self.shift[part], mirror)
+
+
+def mirror_points(points: np.ndarray, mirror: np.ndarray) -> np.ndarray:
+    """Reflect the flagged samples' sub-pixel points ``(B, K, 2)`` left-right about the image centre."""
+    points = np.array(points, dtype=np.float64)
+    points[mirror, :, 1] = 2 * IMAGE_CENTER[1] - points[mirror, :, 1]
+    return points
+
 
 def transform_points(points: np.ndarray, se2: Se2) -> np.ndarray:
     """Move sub-pixel points ``(B, K, 2)`` (row, col) by each sample's transform."""
-    points = np.asarray(points, dtype=np.float64)
+    points = mirror_points(points, se2.mirrored())
     turned = rotate_pixels(points, se2.yaw[:, None], IMAGE_CENTER)
     return turned + se2.shift[:, None, :]
 
@@ -84,8 +107,14 @@ def sample_se2(
     rotation_std: float = ROTATION_STD,
     shift_std: float = SHIFT_STD,
     max_tries: int = MAX_TRIES,
+    mirror: float = 0.0,
 ) -> Se2:
-    """Draw one transform per sample that keeps its key points ``(B, K, 2)`` inside the image."""
+    """Draw one transform per sample that keeps its key points ``(B, K, 2)`` inside the image; with
+    ``mirror`` > 0, that share of the samples is mirrored first (drawn before the turns; at 0 nothing is
+    drawn for it, so the stream of draws is the unmirrored one)."""
+    flags = rng.random(len(points)) < mirror if mirror > 0 else None
+    if flags is not None:
+        points = mirror_points(points, flags)
     probes = probe_points(points, margin)
     b = probes.shape[0]
     yaw = np.zeros(b)
@@ -99,12 +128,16 @@ def sample_se2(
         yaw[todo[ok]] = cand.yaw[ok]
         shift[todo[ok]] = cand.shift[ok]
         todo = todo[~ok]
-    return Se2(yaw, shift)  # samples still in ``todo`` keep the identity
+    return Se2(yaw, shift, flags)  # samples still in ``todo`` keep no turn and no shift
 
 
 def warp(images: torch.Tensor, se2: Se2) -> torch.Tensor:
     """Warp images ``(B, C, H, W)`` by each sample's transform (nearest neighbour, zero fill)."""
     b = images.shape[0]
+    mirror = se2.mirrored()
+    if mirror.any():
+        flagged = torch.from_numpy(mirror)
+        images = torch.where(flagged[:, None, None, None], images.flip(-1), images)
     if not np.any(se2.yaw) and not np.any(se2.shift):
         return images
     center = torch.as_tensor(np.broadcast_to(IMAGE_CENTER, (b, 2)).copy(), dtype=torch.float32)

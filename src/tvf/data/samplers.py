@@ -9,7 +9,8 @@ gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the sa
 * :class:`GctnSampler`: (current, goal = last frame, pick pixel, place pixel, rotation bin) from the
   oracle steps only (states reached after a random action are included); with ``hindsight`` > 0 that
   share of the samples takes a later frame of the same demonstration as its goal instead (a partial
-  structure the expert's next steps reach, :meth:`GctnSampler.draw`).
+  structure the expert's next steps reach, :meth:`GctnSampler.draw`); with ``mirror`` > 0 that
+  share of the samples is mirrored left-right before its turn, its rotation bin negated.
 * :class:`VfSampler`: (current, action, next) from every step, oracle and random, and with
   probability 1/8 an identity sample (place = pick, no turn, next = current).
 * :class:`VfRolloutSampler`: H consecutive steps of one episode (the frames ``step .. step + H`` and the
@@ -18,8 +19,9 @@ gives a fixed, un-augmented sample for evaluation and ``batch(ep, step)`` the sa
 A batch is a dict of tensors. Images are raw units: ``*_color`` (B, H, W, 3) float32 0..255 and
 ``*_height`` (B, H, W) float32 metres (``tvf.models.images.to_rgbh`` normalises them). Pixels are
 (B, 2) int64 (row, col); ``rot_bin`` (B,) int64; the VF's ``yaw`` (B,) float32 is the block's turn
-in radians. ``aug_yaw`` (B,) and ``aug_shift`` (B, 2) record the transform applied, ``episode`` and
-``step`` (B,) where the sample came from (``episode`` indexes ``sampler.episodes``).
+in radians. ``aug_yaw`` (B,), ``aug_shift`` (B, 2) and ``aug_mirror`` (B,) bool record the transform
+applied, ``episode`` and ``step`` (B,) where the sample came from (``episode`` indexes
+``sampler.episodes``).
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ class _Sampler(IterableDataset):
     """Shared machinery: episodes grouped by task, the reference's draw, batched augmentation."""
 
     margin: float = 0.0
+    mirror: float = 0.0
+    """The share of augmented samples mirrored before their turn (only the GCTN's sets it)."""
 
     def __init__(
         self,
@@ -128,7 +132,7 @@ class _Sampler(IterableDataset):
         se2, pixels = self._transform(self._points(ep, step, drawn), rng, augment)
         if part is not None:
             ep, step, drawn, pixels = ep[part], step[part], drawn[part], pixels[part]
-            se2 = Se2(se2.yaw[part], se2.shift[part])
+            se2 = se2.subset(part)
         return self._build(ep, step, drawn, se2, pixels)
 
     def item(self, index: int) -> dict[str, torch.Tensor]:
@@ -163,7 +167,10 @@ class _Sampler(IterableDataset):
         self, points: np.ndarray, rng: np.random.Generator, augment: bool
     ) -> tuple[Se2, np.ndarray]:
         """A transform per sample (identity without augmentation) and the moved key pixels (B, K, 2)."""
-        se2 = sample_se2(points, rng, margin=self.margin) if augment else Se2.identity(len(points))
+        if augment:
+            se2 = sample_se2(points, rng, margin=self.margin, mirror=self.mirror)
+        else:
+            se2 = Se2.identity(len(points))
         px = subpixel_to_pixel(transform_points(points, se2))
         # Rejection sampling keeps the points inside; the clip only acts on the untransformed fallback.
         px[..., 0] = np.clip(px[..., 0], 0, WORKSPACE.rows - 1)
@@ -195,6 +202,7 @@ class _Sampler(IterableDataset):
             "step": torch.from_numpy(step.astype(np.int64)),
             "aug_yaw": torch.from_numpy(se2.yaw.astype(np.float32)),
             "aug_shift": torch.from_numpy(se2.shift.astype(np.float32)),
+            "aug_mirror": torch.from_numpy(se2.mirrored()),
         }
 
 
@@ -204,7 +212,10 @@ class GctnSampler(_Sampler):
     The goal is the demonstration's last frame (the reference's), or with probability ``hindsight`` a
     later frame that the expert's next steps reach with no random step between (hindsight goals: the
     partial structures on the way, so the goals are many shapes, not one per task; the label stays the
-    expert's action, which is the first of the steps that reach that frame).
+    expert's action, which is the first of the steps that reach that frame). With probability ``mirror``
+    an augmented sample is mirrored left-right before its turn (both images and both points), and its
+    rotation bin negated: the mirror images of the six training structures, which no demonstration
+    shows (off by default; the reference never mirrors).
     """
 
     margin = 0.0
@@ -217,11 +228,15 @@ class GctnSampler(_Sampler):
         seed: int = 0,
         n_rotations: int = 36,
         hindsight: float = 0.0,
+        mirror: float = 0.0,
     ) -> None:
         if not 0.0 <= hindsight <= 1.0:
             raise ValueError(f"hindsight is a share of the samples, between 0 and 1; got {hindsight}")
+        if not 0.0 <= mirror <= 1.0:
+            raise ValueError(f"mirror is a share of the samples, between 0 and 1; got {mirror}")
         super().__init__(episodes, batch_size, augment, seed, n_rotations)
         self.hindsight = hindsight
+        self.mirror = mirror
         self._reach = [expert_reach(e) for e in self.episodes]
 
     def eligible_steps(self, episode: Episode) -> np.ndarray:
@@ -251,6 +266,7 @@ class GctnSampler(_Sampler):
     ) -> dict[str, torch.Tensor]:
         images = warp(self._stack_images(self._frames(ep, step), self._frames(ep, goal)), se2)
         bins = np.array([self._bins[e][s] for e, s in zip(ep, step, strict=True)], np.int64)
+        bins = np.where(se2.mirrored(), -bins % self.n_rotations, bins)  # a reflection reverses the turn
         return {
             **self._split_images(images, ("current", "goal")),
             "pick": torch.from_numpy(pixels[:, 0]),

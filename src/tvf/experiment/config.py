@@ -103,6 +103,9 @@ class ExperimentConfig:
     """GCTN: the share of training samples whose goal is a later frame of the same demonstration, a
     partial structure on the way, instead of its last frame (tvf train gctn --hindsight;
     docs/training.md, "Hindsight goals"); 0: the paper's."""
+    gctn_mirror: float = 0.0
+    """GCTN: the share of training samples mirrored left-right before their random turn (tvf train gctn
+    --mirror; docs/training.md, "Mirror images"); 0: the paper's."""
     vf_tune: bool = False
     """After the VF's recipe, fine-tune it with the preset's second phase (lite: 3000 steps from its
     weights, lr 2e-4 cosine, three-step rollout loss, changed pixels weighted 21 times, the local head;

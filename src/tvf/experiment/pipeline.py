@@ -102,7 +102,8 @@ def train_config(cfg: ExperimentConfig, kind: str) -> TrainConfig:
         tasks=cfg.train_tasks, task_file=cfg.task_file, resume=True, restart=cfg.restart, device=cfg.device,
         wandb=cfg.wandb, gctn_kernels=cfg.gctn_kernels if kind == "gctn" else None,
         gctn_width=cfg.gctn_width if kind == "gctn" else None,
-        hindsight=cfg.gctn_hindsight if kind == "gctn" else 0.0, **overrides,
+        hindsight=cfg.gctn_hindsight if kind == "gctn" else 0.0,
+        mirror=cfg.gctn_mirror if kind == "gctn" else 0.0, **overrides,
     ), kind)  # fmt: skip
     return _with_intervals(tc)
 

@@ -66,6 +66,10 @@ class TrainConfig:
     partial structure the expert's next steps reach) instead of its last frame: hindsight goals, many
     shapes instead of one per task (docs/training.md, "Hindsight goals"); validation keeps the last
     frame; 0: the paper's."""
+    mirror: float = 0.0
+    """GCTN only: the share of training samples mirrored left-right before their random turn (both images
+    and the action; the turn's sense reversed): the six structures' mirror images, which no
+    demonstration shows (docs/training.md, "Mirror images"); 0: the paper's."""
     init: Path | None = None
     """Start from these weights instead of a random initialisation: a run folder, a .pt or a .safetensors
     file of the same model kind and preset (e.g. the shipped GCTN, to fine-tune it with --turns 4)."""

@@ -198,10 +198,13 @@ def _refuse_gctn_network_flags(cfg: TrainConfig, model: str) -> None:
                          "the preset: leave it out")  # fmt: skip
 
 
-def _refuse_hindsight(cfg: TrainConfig, model: str) -> None:
+def _refuse_gctn_sample_flags(cfg: TrainConfig, model: str) -> None:
     if cfg.hindsight:
         raise TrainError(f"--hindsight is a GCTN flag (the goals of its samples); the {model} has no goal "
                          "image: leave it out")  # fmt: skip
+    if cfg.mirror:
+        raise TrainError(f"--mirror is a GCTN flag (mirror images of its samples); the {model} is trained "
+                         "without them: leave it out")  # fmt: skip
 
 
 def _refuse_rollout(cfg: TrainConfig, model: str) -> None:
@@ -238,13 +241,16 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
         losses = trained.loss(current, goal, batch["pick"], batch["place"], batch["rot_bin"])
         return losses["total"], {k if k != "total" else "loss": float(v.detach()) for k, v in losses.items()}
 
-    drawn = partial(sampler_cls, hindsight=cfg.hindsight) if cfg.hindsight else None
+    drawing = {k: v for k, v in (("hindsight", cfg.hindsight), ("mirror", cfg.mirror)) if v}
+    drawn = partial(sampler_cls, **drawing) if drawing else None
     job = _job("gctn", cfg, model, sampler_cls, loss, gctn_metrics, gctn_pictures, judged=trained,
                train_sampler=drawn)  # fmt: skip
     if turns > 1:  # part of what a resumed run must match; absent: the plain GCTN's loss
         job.config["turns"] = turns
     if cfg.hindsight:  # likewise; absent: the last frame is every sample's goal
         job.config["hindsight"] = cfg.hindsight
+    if cfg.mirror:  # likewise; absent: no sample is mirrored
+        job.config["mirror"] = cfg.mirror
     return job
 
 
@@ -279,7 +285,7 @@ def vf_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
     """Training job for the visual-foresight model (validated on oracle steps, no identity samples)."""
     _refuse_turns(cfg, "visual-foresight model")
     _refuse_gctn_network_flags(cfg, "visual-foresight model")
-    _refuse_hindsight(cfg, "visual-foresight model")
+    _refuse_gctn_sample_flags(cfg, "visual-foresight model")
     preset = get_preset(cfg.preset)
     if cfg.vf_head is not None:
         preset = preset.replace(vf_head=cfg.vf_head)
@@ -348,7 +354,7 @@ def latent_job(cfg: TrainConfig, sampler_cls: type = VfSampler) -> TrainingJob:
         raise TrainError("--vf-head is a VF flag; the latent-dynamics model has no output head to choose")
     _refuse_turns(cfg, "latent-dynamics model")
     _refuse_gctn_network_flags(cfg, "latent-dynamics model")
-    _refuse_hindsight(cfg, "latent-dynamics model")
+    _refuse_gctn_sample_flags(cfg, "latent-dynamics model")
     _refuse_rollout(cfg, "latent-dynamics model")
     model = LatentDynamics(get_preset(cfg.preset), seed=cfg.seed)
 

@@ -56,7 +56,7 @@ class TrainError(TvfError):
 SCHEDULES = ("constant", "cosine")
 RESUME_MATCH = (
     "kind", "preset", "data_fingerprint", "seed", "batch", "lr", "schedule", "loss", "turns", "hindsight",
-    "init",
+    "mirror", "init",
 )  # fmt: skip
 """What a resumed run must share with the run it continues."""
 
@@ -136,6 +136,8 @@ def check_config(cfg: TrainConfig) -> None:
     if not 0.0 <= cfg.hindsight <= 1.0:  # NaN too
         share = cfg.hindsight
         raise TrainError(f"--hindsight {share}: a share of the samples, between 0 and 1 (0: the paper's)")
+    if not 0.0 <= cfg.mirror <= 1.0:  # NaN too
+        raise TrainError(f"--mirror {cfg.mirror}: a share of the samples, between 0 and 1 (0: the paper's)")
     for name in ("threads", "loader_workers", "keep"):
         if getattr(cfg, name) < 0:
             flag = f"--{name.replace('_', '-')}"
