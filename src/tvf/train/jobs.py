@@ -247,10 +247,7 @@ def gctn_job(cfg: TrainConfig, sampler_cls: type = GctnSampler) -> TrainingJob:
                train_sampler=drawn)  # fmt: skip
     if turns > 1:  # part of what a resumed run must match; absent: the plain GCTN's loss
         job.config["turns"] = turns
-    if cfg.hindsight:  # likewise; absent: the last frame is every sample's goal
-        job.config["hindsight"] = cfg.hindsight
-    if cfg.mirror:  # likewise; absent: no sample is mirrored
-        job.config["mirror"] = cfg.mirror
+    job.config.update(drawing)  # likewise; absent: every goal the last frame, no sample mirrored
     return job
 
 

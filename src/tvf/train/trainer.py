@@ -133,11 +133,10 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.vf_rollout is not None and cfg.vf_rollout < 1:
         rollout = cfg.vf_rollout
         raise TrainError(f"--vf-rollout must be 1 (the reference's one-step loss) or more, not {rollout}")
-    if not 0.0 <= cfg.hindsight <= 1.0:  # NaN too
-        share = cfg.hindsight
-        raise TrainError(f"--hindsight {share}: a share of the samples, between 0 and 1 (0: the paper's)")
-    if not 0.0 <= cfg.mirror <= 1.0:  # NaN too
-        raise TrainError(f"--mirror {cfg.mirror}: a share of the samples, between 0 and 1 (0: the paper's)")
+    for flag in ("hindsight", "mirror"):
+        share = getattr(cfg, flag)
+        if not 0.0 <= share <= 1.0:  # NaN too
+            raise TrainError(f"--{flag} {share}: a share of the samples, between 0 and 1 (0: the paper's)")
     for name in ("threads", "loader_workers", "keep"):
         if getattr(cfg, name) < 0:
             flag = f"--{name.replace('_', '-')}"
